@@ -1,0 +1,1 @@
+"""lipsynth shared library: params, store, media I/O, parallel execution, geometry."""

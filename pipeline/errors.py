@@ -1,0 +1,26 @@
+"""Typed errors. Every message names the offending file (or parameter) and the problem."""
+
+
+class LipsynthError(Exception):
+    """Base class for all errors lipsynth reports to the user as one line."""
+
+
+class ParameterError(LipsynthError):
+    """A parameter in params.yaml (or on the command line) is missing or invalid."""
+
+
+class BadInputError(LipsynthError):
+    """An input file cannot be used: no audio, no video, corrupt, no face, too short...
+
+    Parameters
+    ----------
+    path : str
+        The offending file.
+    problem : str
+        What is wrong with it, in a few words.
+    """
+
+    def __init__(self, path, problem):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
