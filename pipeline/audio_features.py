@@ -1,0 +1,99 @@
+"""Paper 000 §3.1 "Audio Features": RMS-normalised 16 kHz mono → 28-D MFCC features at 100 Hz.
+
+25 ms Hann windows every 10 ms, power spectrum, 40 triangular mel filters, log, DCT-II to 13
+cepstra, plus the log mean energy of the window, plus first temporal derivatives of all 14.
+Frame t is centred at time t / 100 s.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+import scipy.signal
+import librosa
+
+from .errors import ParameterError
+
+SAMPLE_RATE = 16000
+WIN = 400        # 25 ms at 16 kHz
+HOP = 160        # 10 ms at 16 kHz
+N_FFT = 512
+N_MELS = 40
+N_CEPS = 13
+FEATURE_DIM = 2 * (N_CEPS + 1)   # 28
+EPS = 1e-10
+
+
+def rms_normalize(samples: np.ndarray, target_dbfs: float = -23.0, max_gain_db: float = 40.0) -> np.ndarray:
+    """Scale audio so its RMS is ``target_dbfs`` (ffmpeg-normalize's RMS mode).
+
+    Gain is capped at ``max_gain_db`` so digital silence stays silent rather than becoming
+    amplified noise. Returns float32 (S,).
+    """
+    rms = float(np.sqrt(np.mean(np.square(samples, dtype=np.float64)))) if len(samples) else 0.0
+    if rms <= 0:
+        return samples.astype(np.float32)
+    gain = min(10 ** (target_dbfs / 20) / rms, 10 ** (max_gain_db / 20))
+    return np.clip(samples * gain, -1.0, 1.0).astype(np.float32)
+
+
+def frame_signal(samples: np.ndarray, win: int = WIN, hop: int = HOP) -> np.ndarray:
+    """Zero-pad by win//2 on both sides and cut into frames; returns (T, win), T = 1 + S // hop."""
+    padded = np.pad(samples.astype(np.float64), (win // 2, win // 2))
+    n = 1 + len(samples) // hop
+    need = (n - 1) * hop + win
+    if len(padded) < need:
+        padded = np.pad(padded, (0, need - len(padded)))
+    idx = np.arange(win)[None, :] + hop * np.arange(n)[:, None]
+    return padded[idx]
+
+
+_MEL = None
+
+
+def mel_filterbank() -> np.ndarray:
+    """(40, 257) triangular mel filters for a 512-point FFT at 16 kHz (HTK mel scale)."""
+    global _MEL
+    if _MEL is None:
+        _MEL = librosa.filters.mel(sr=SAMPLE_RATE, n_fft=N_FFT, n_mels=N_MELS, htk=True, norm=None)
+    return _MEL
+
+
+def log_mel(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Log mel energies (T, 40) and log mean energy (T,) of each 25 ms window."""
+    frames = frame_signal(samples)
+    window = scipy.signal.get_window("hann", WIN, fftbins=True)
+    power = np.abs(np.fft.rfft(frames * window, n=N_FFT)) ** 2
+    mel = np.log(power @ mel_filterbank().T + EPS)
+    energy = np.log(np.mean(frames ** 2, axis=1) + EPS)
+    return mel, energy
+
+
+def delta(x: np.ndarray, width: int = 2) -> np.ndarray:
+    """Regression first derivative along time (HTK, ±``width`` frames, edges repeated). (T, D) → (T, D)."""
+    t = len(x)
+    padded = np.pad(x, ((width, width), (0, 0)), mode="edge")
+    num = sum(k * (padded[width + k:width + k + t] - padded[width - k:width - k + t]) for k in range(1, width + 1))
+    return num / (2 * sum(k * k for k in range(1, width + 1)))
+
+
+def mfcc_features(samples: np.ndarray, sample_rate: int = SAMPLE_RATE) -> np.ndarray:
+    """28-D features at 100 Hz: 13 MFCC, log mean energy, and their deltas.
+
+    Parameters
+    ----------
+    samples : ndarray, shape (S,)
+        Mono audio at 16 kHz, already RMS-normalised (see ``rms_normalize``).
+
+    Returns
+    -------
+    ndarray, shape (1 + S // 160, 28), float32
+    """
+    if sample_rate != SAMPLE_RATE:
+        raise ParameterError(f"mfcc_features expects {SAMPLE_RATE} Hz audio, got {sample_rate} Hz (resample first)")
+    if samples.ndim != 1:
+        raise ParameterError(f"mfcc_features expects mono (S,) audio, got shape {samples.shape}")
+    mel, energy = log_mel(samples)
+    ceps = scipy.fft.dct(mel, type=2, norm="ortho", axis=1)[:, :N_CEPS]
+    static = np.concatenate([ceps, energy[:, None]], axis=1)
+    return np.concatenate([static, delta(static)], axis=1).astype(np.float32)
+

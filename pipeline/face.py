@@ -1,0 +1,60 @@
+"""dlib face detector (HOG) and 68-point iBUG shape predictor, loaded once per process."""
+from __future__ import annotations
+
+import functools
+import importlib.util
+import os
+
+import numpy as np
+
+
+def predictor_path() -> str:
+    """Path of ``shape_predictor_68_face_landmarks.dat`` shipped by face-recognition-models.
+
+    Located with ``find_spec`` so that ``pkg_resources`` is never imported.
+    """
+    spec = importlib.util.find_spec("face_recognition_models")
+    if spec is None or spec.origin is None:
+        raise ImportError("face-recognition-models is not installed (pip install face-recognition-models)")
+    return os.path.join(os.path.dirname(spec.origin), "models", "shape_predictor_68_face_landmarks.dat")
+
+
+@functools.lru_cache(maxsize=1)
+def detector():
+    import dlib
+    return dlib.get_frontal_face_detector()
+
+
+@functools.lru_cache(maxsize=1)
+def predictor():
+    import dlib
+    return dlib.shape_predictor(predictor_path())
+
+
+def detect_faces(gray: np.ndarray, upsample: int = 0) -> list[tuple[np.ndarray, float]]:
+    """HOG detections as ``(box, score)``, box = [x0, y0, x1, y1] in pixels, best first."""
+    dets, scores, _ = detector().run(gray, upsample, 0.0)
+    out = [(np.array([d.left(), d.top(), d.right(), d.bottom()], float), float(s)) for d, s in zip(dets, scores)]
+    return sorted(out, key=lambda ds: -ds[1])
+
+
+def predict_landmarks(gray: np.ndarray, box) -> np.ndarray:
+    """68 landmarks (68, 2) float32 pixel coordinates inside ``box`` = [x0, y0, x1, y1]."""
+    import dlib
+    r = dlib.rectangle(int(round(box[0])), int(round(box[1])), int(round(box[2])), int(round(box[3])))
+    s = predictor()(gray, r)
+    return np.array([(p.x, p.y) for p in s.parts()], np.float32)
+
+
+# iBUG 68-point groups
+JAW = slice(0, 17)
+BROWS = slice(17, 27)
+NOSE = slice(27, 36)
+EYES = slice(36, 48)
+MOUTH = slice(48, 68)
+LEFT_EYE_OUTER, RIGHT_EYE_OUTER = 36, 45
+
+
+def interocular(lm: np.ndarray) -> np.ndarray:
+    """Outer-eye-corner distance of (..., 68, 2) landmarks → (...)."""
+    return np.linalg.norm(lm[..., RIGHT_EYE_OUTER, :] - lm[..., LEFT_EYE_OUTER, :], axis=-1)

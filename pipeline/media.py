@@ -1,0 +1,176 @@
+"""Media I/O with PyAV (bundled FFmpeg): probe, decode frames with timestamps, decode audio.
+
+All times are in seconds on the container's clock; audio is returned aligned to the first
+video frame so that sample 0 is heard when frame 0 is shown.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Iterator
+
+import av
+import numpy as np
+
+from .errors import BadInputError
+
+
+@dataclass
+class VideoInfo:
+    """What a container holds. ``fps`` is the video stream's average rate (frames/s)."""
+
+    path: str
+    width: int
+    height: int
+    fps: float
+    duration: float          # seconds, from the container (may be approximate)
+    has_audio: bool
+    audio_rate: int | None   # Hz of the first audio stream
+    audio_channels: int | None
+
+
+def _open(path) -> av.container.InputContainer:
+    path = Path(path)
+    if not path.exists():
+        raise BadInputError(path, "file not found")
+    if path.stat().st_size == 0:
+        raise BadInputError(path, "file is empty (0 bytes)")
+    try:
+        return av.open(str(path))
+    except (av.error.FFmpegError, UnicodeDecodeError) as exc:  # corrupt or not media
+        raise BadInputError(path, f"cannot be opened as media ({exc.__class__.__name__}): corrupt or not a video file") from None
+
+
+def probe(path) -> VideoInfo:
+    """Read stream metadata without decoding. Raises BadInputError if there is no video stream."""
+    with _open(path) as c:
+        if not c.streams.video:
+            raise BadInputError(path, "no video stream")
+        v = c.streams.video[0]
+        rate = v.average_rate or v.guessed_rate or v.base_rate
+        if not rate or float(rate) <= 0:
+            raise BadInputError(path, "video stream has no usable frame rate")
+        a = c.streams.audio[0] if c.streams.audio else None
+        dur = float(c.duration / av.time_base) if c.duration else (
+            float(v.duration * v.time_base) if v.duration else 0.0)
+        return VideoInfo(str(path), v.codec_context.width, v.codec_context.height, float(rate), dur,
+                         a is not None, a.codec_context.sample_rate if a else None,
+                         a.codec_context.channels if a else None)
+
+
+def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Iterator[tuple[float, np.ndarray]]:
+    """Yield ``(t, image)`` for each decoded frame.
+
+    Parameters
+    ----------
+    fmt : str
+        PyAV pixel format of the returned array: ``rgb24`` gives (H, W, 3) uint8,
+        ``gray`` gives (H, W) uint8.
+    keyframes_only : bool
+        Decode only key frames (fast sparse sampling of a long video).
+
+    Yields
+    ------
+    t : float
+        Presentation time in seconds (stream clock).
+    image : ndarray
+    """
+    with _open(path) as c:
+        if not c.streams.video:
+            raise BadInputError(path, "no video stream")
+        v = c.streams.video[0]
+        v.thread_type = "AUTO"
+        if keyframes_only:
+            v.codec_context.skip_frame = "NONKEY"
+        try:
+            for frame in c.decode(v):
+                t = float(frame.pts * v.time_base) if frame.pts is not None else float(frame.time or 0.0)
+                yield t, frame.to_ndarray(format=fmt)
+        except av.error.FFmpegError as exc:
+            raise BadInputError(path, f"video stream is corrupt ({exc})") from None
+
+
+def read_audio(path, sample_rate: int = 16000) -> tuple[np.ndarray, float]:
+    """Decode the first audio stream, down-mixed to mono and resampled.
+
+    Returns
+    -------
+    samples : ndarray, shape (S,), float32 in [-1, 1]
+    start : float
+        Time (s, stream clock) of the first sample.
+    """
+    with _open(path) as c:
+        if not c.streams.audio:
+            raise BadInputError(path, "no audio track")
+        a = c.streams.audio[0]
+        res = av.AudioResampler(format="flt", layout="mono", rate=sample_rate)
+        chunks, start = [], None
+        try:
+            for frame in c.decode(a):
+                if start is None and frame.pts is not None:
+                    start = float(frame.pts * a.time_base)
+                for out in res.resample(frame):
+                    chunks.append(out.to_ndarray().reshape(-1))
+            for out in res.resample(None):
+                chunks.append(out.to_ndarray().reshape(-1))
+        except av.error.FFmpegError as exc:
+            raise BadInputError(path, f"audio stream is corrupt ({exc})") from None
+    if not chunks:
+        raise BadInputError(path, "audio track holds no samples")
+    return np.concatenate(chunks).astype(np.float32), float(start or 0.0)
+
+
+def align_audio(samples: np.ndarray, audio_start: float, video_start: float, duration: float,
+                sample_rate: int) -> np.ndarray:
+    """Cut/pad ``samples`` so sample 0 plays at ``video_start`` and the length is ``duration``.
+
+    Audio that starts after the video is preceded by silence; audio that starts before
+    is trimmed; a short tail is padded with zeros. Returns float32 of
+    ``round(duration * sample_rate)`` samples.
+    """
+    n = int(round(duration * sample_rate))
+    offset = int(round((audio_start - video_start) * sample_rate))  # >0: audio starts late
+    out = np.zeros(n, np.float32)
+    src0 = max(0, -offset)
+    dst0 = max(0, offset)
+    m = min(n - dst0, len(samples) - src0)
+    if m > 0:
+        out[dst0:dst0 + m] = samples[src0:src0 + m]
+    return out
+
+
+def write_video(path, frames, fps: float, audio: np.ndarray | None = None, sample_rate: int = 16000,
+                crf: int = 18) -> None:
+    """Encode (T, H, W, 3) uint8 RGB ``frames`` as H.264/yuv420p with optional AAC mono audio.
+
+    ``fps`` may be fractional (29.97 is written as 30000/1001).
+    """
+    rate = Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-3 else Fraction(fps).limit_denominator(1001)
+    with av.open(str(path), "w") as c:
+        v = c.add_stream("libx264", rate=rate, options={"crf": str(crf), "preset": "veryfast"})
+        first = True
+        a = None
+        if audio is not None:
+            a = c.add_stream("aac", rate=sample_rate)
+            a.layout = "mono"
+        for img in frames:
+            if first:
+                v.height, v.width = img.shape[:2]
+                v.pix_fmt = "yuv420p"
+                first = False
+            for p in v.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")):
+                c.mux(p)
+        for p in v.encode():
+            c.mux(p)
+        if a is not None:
+            pcm = np.clip(audio, -1, 1).astype(np.float32).reshape(1, -1)
+            step = 1024
+            for i in range(0, pcm.shape[1], step):
+                fr = av.AudioFrame.from_ndarray(np.ascontiguousarray(pcm[:, i:i + step]), format="flt", layout="mono")
+                fr.sample_rate = sample_rate
+                fr.pts = i
+                for p in a.encode(fr):
+                    c.mux(p)
+            for p in a.encode():
+                c.mux(p)

@@ -1,0 +1,96 @@
+"""The zarr v3 store every stage reads and writes.
+
+Each stage owns one zarr group (``store/<stage>.zarr``). Per-frame arrays share one global
+frame axis: the videos of the corpus are concatenated in index order, and the per-video index
+(``attrs["videos"]``) says where each video starts. Arrays are sharded along time so that DVC
+hashes few files and so that one dask task writes whole shards (no two tasks touch a shard).
+
+A stage writes into ``<out>.tmp-<pid>`` and renames it onto ``<out>`` when everything
+succeeded (``atomic_output``), so a failed run never leaves a half-written store.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import zarr
+from zarr.codecs import BloscCodec, BloscShuffle
+
+COMPRESSOR = BloscCodec(cname="zstd", clevel=5, shuffle=BloscShuffle.bitshuffle)
+
+
+@contextlib.contextmanager
+def atomic_output(out: str | os.PathLike):
+    """Yield a temporary path next to ``out``; on success replace ``out`` with it.
+
+    On any exception the temporary directory is removed and ``out`` is left as it was.
+    """
+    out = Path(out).absolute()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if out.exists():
+        old = out.with_name(f".{out.name}.old-{os.getpid()}")
+        os.replace(out, old)
+        os.replace(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, out)
+
+
+def create_group(path, attrs: dict | None = None) -> zarr.Group:
+    g = zarr.open_group(str(path), mode="w", zarr_format=3)
+    if attrs:
+        g.attrs.update(attrs)
+    return g
+
+
+def open_group(path, mode: str = "r") -> zarr.Group:
+    if not Path(path).exists():
+        from .errors import LipsynthError
+        raise LipsynthError(f"{path}: store not found — run the stage that produces it first (dvc repro)")
+    return zarr.open_group(str(path), mode=mode, zarr_format=3)
+
+
+def create_timed(group: zarr.Group, name: str, length: int, item_shape: tuple, dtype,
+                 shard_len: int, chunk_len: int, fill_value=0) -> zarr.Array:
+    """Create an array with time as axis 0, chunked by ``chunk_len`` and sharded by ``shard_len``."""
+    if shard_len % chunk_len:
+        raise ValueError(f"shard_len {shard_len} must be a multiple of chunk_len {chunk_len}")
+    shape = (max(length, 0),) + tuple(item_shape)
+    return group.create_array(
+        name, shape=shape, dtype=dtype,
+        chunks=(chunk_len,) + tuple(item_shape),
+        shards=(shard_len,) + tuple(item_shape),
+        compressors=COMPRESSOR, fill_value=fill_value)
+
+
+def shard_ranges(length: int, shard_len: int) -> list[tuple[int, int]]:
+    """Split ``[0, length)`` into shard-aligned ``(start, stop)`` ranges — one task each."""
+    return [(s, min(s + shard_len, length)) for s in range(0, length, shard_len)]
+
+
+def stored_bytes(path) -> int:
+    """Bytes on disk under ``path`` (a zarr array or group directory)."""
+    return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file())
+
+
+def video_of_frames(videos: list[dict], start: int, stop: int):
+    """Yield ``(video, lo, hi)``: the part ``[lo, hi)`` of global frames ``[start, stop)`` in each video."""
+    for v in videos:
+        lo = max(start, v["first_frame"])
+        hi = min(stop, v["first_frame"] + v["n_frames"])
+        if lo < hi:
+            yield v, lo, hi
+
+
+def as_numpy(a) -> np.ndarray:
+    return np.asarray(a[...])
