@@ -1,0 +1,207 @@
+"""frontalize — 3D face model, chin extension, per-frame pose, frontal textures (paper 000 §3.2.1).
+
+Plan (on the client, small data): sample valid frames of the training videos, build the
+speaker's 3D landmark model (``model3d``: prior or factorisation, chosen by conditioning, then
+pycolmap bundle adjustment), extend its depth over the canonical grid (``chin_extension``,
+Eq. 7–8). Execution (dask, one task per shard of frames): pose by PnP against the model for
+every frame, frontal texture of the lower face, frontal landmarks, clothing mask + Telea
+inpainting (``warp``).
+
+Store ``store/frontalize.zarr`` (same global frame axis as ingest):
+    texture            (N, 3T/2, T) uint8  I420 frontal lower-face texture (clothing inpainted)
+    clothing_mask      (N, T, T) bool      pixels that were clothing (before inpainting)
+    frontal_landmarks  (N, 68, 2) float32  landmarks on the canonical plane, texture pixels
+    pose               (N, 6) float32      rvec (rad), tvec (mm): model → camera
+    pose_valid         (N,) bool
+    reprojection_error (N,) float32        RMS px of the rigid landmarks
+    model/shape3d (68, 3) mm, model/depth (H, W) mm, model/face_region (H, W) bool,
+    model/texture_points (T, T, 3) mm;  attrs: grid, texture window, method, conditioning, BA errors
+
+Run: ``python -m stages.frontalize.frontalize``.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import LipsynthError
+from pipeline.geometry import euler_degrees, intrinsics, solve_pose
+from pipeline.params import load_params
+from pipeline.parallel import client_for, run_tasks
+from pipeline.runner import run_main, setup_logging
+from pipeline.store import atomic_output, create_group, create_timed, open_group, shard_ranges, video_of_frames
+from stages.frontalize import model3d
+from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
+from stages.frontalize.warp import (Surface, TextureWindow, clothing_mask, frontal_landmarks, frontal_texture,
+                                    inpaint)
+
+log = logging.getLogger("lipsynth.frontalize")
+
+
+# ---------------------------------------------------------------- plan: the model
+def sample_model_frames(videos: list[dict], valid: np.ndarray, max_frames: int) -> np.ndarray:
+    """Evenly spaced valid frames of the non-excluded training videos (global indices)."""
+    idx = np.concatenate([np.arange(v["first_frame"], v["first_frame"] + v["n_frames"]) for v in videos
+                          if v["split"] == "train" and not v.get("excluded")] or [np.zeros(0, int)])
+    idx = idx[valid[idx]]
+    if len(idx) < 10:
+        raise LipsynthError(f"only {len(idx)} valid training frames: too few to build a 3D face model")
+    return idx[np.unique(np.linspace(0, len(idx) - 1, min(max_frames, len(idx))).round().astype(int))]
+
+
+def build_model(lms: np.ndarray, Ks: list[np.ndarray], p: dict) -> tuple[np.ndarray, dict]:
+    """3D model (68, 3) mm from sampled landmarks (F, 68, 2); returns it with a report dict."""
+    mean2d = model3d.mean_shape_2d(lms)
+    prior = model3d.prior_shape(mean2d)
+    kappa = model3d.conditioning(lms)
+    method = "factorization" if kappa >= p["min_conditioning"] else "prior"
+    start = model3d.factorize(lms) if method == "factorization" else model3d._to_canonical(prior)
+    shape, before, after = model3d.bundle_adjust(start, list(lms), Ks, p["ba_iterations"])
+    report = dict(method=method, conditioning=kappa, ba_rms_before=before, ba_rms_after=after, n_frames=len(lms))
+    log.info("3D model: %s start (conditioning s3/s4 = %.2f, threshold %.1f), bundle adjustment over %d frames: "
+             "RMS %.2f → %.2f px", method, kappa, p["min_conditioning"], len(lms), before, after)
+    return shape, report
+
+
+def build_surface(shape: np.ndarray, p: dict) -> tuple[Surface, np.ndarray]:
+    """Extended depth map over the canonical grid (Eq. 7–8)."""
+    step = p["grid_mm"]
+    xs = np.arange(p["grid_x_mm"][0], p["grid_x_mm"][1] + 1e-9, step)
+    ys = np.arange(p["grid_y_mm"][0], p["grid_y_mm"][1] + 1e-9, step)
+    depth, known = face_depth_on_grid(shape, xs, ys)
+    ext = extend_depth(np.nan_to_num(depth), known, p["data_weight"], p["boundary_weight"])
+    return Surface(ext, float(xs[0]), float(ys[0]), step), known
+
+
+def texture_window(p: dict) -> TextureWindow:
+    x0, x1 = p["texture_x_mm"]
+    y0 = p["texture_y_mm"][0]
+    return TextureWindow(float(x0), float(y0), (x1 - x0) / p["texture_size"], int(p["texture_size"]))
+
+
+# ---------------------------------------------------------------- execution: per shard
+def frontalize_block(job: dict) -> int:
+    import cv2
+    import zarr
+    cv2.setNumThreads(1)
+    from stages.ingest.ingest import crop_to_rgb
+
+    p = job["params"]
+    src = zarr.open_group(job["ingest"], mode="r")
+    lmg = zarr.open_group(job["landmarks"], mode="r")
+    dst = zarr.open_group(job["out"], mode="r+")
+    a, b = job["start"], job["stop"]
+    shape = np.asarray(dst["model/shape3d"][...])
+    surface = Surface(np.asarray(dst["model/depth"][...]), *job["surface"])
+    win = TextureWindow(**job["window"])
+    points = np.asarray(dst["model/texture_points"][...])
+    crops = src["crops"][a:b]
+    lms = lmg["landmarks"][a:b]
+    valid = lmg["valid"][a:b]
+    T = win.size
+    tex = np.zeros((b - a, T * 3 // 2, T), np.uint8)
+    cloth = np.zeros((b - a, T, T), bool)
+    flm = np.zeros((b - a, 68, 2), np.float32)
+    pose = np.zeros((b - a, 6), np.float32)
+    pok = np.zeros(b - a, bool)
+    rerr = np.full(b - a, np.nan, np.float32)
+    for v, lo, hi in video_of_frames(job["videos"], a, b):
+        K = intrinsics(v["width"], v["height"], p["focal_factor"])
+        guess = None
+        for i in range(lo - a, hi - a):
+            if not valid[i] or v.get("excluded"):
+                guess = None
+                continue
+            rvec, tvec, err = solve_pose(shape[model3d.RIGID], lms[i][model3d.RIGID], K, guess)
+            iod_px = np.linalg.norm(lms[i][45] - lms[i][36])
+            if guess is not None and err > p["max_reprojection"] * iod_px:   # bad warm start: solve globally
+                rvec, tvec, err = solve_pose(shape[model3d.RIGID], lms[i][model3d.RIGID], K)
+            rerr[i] = err
+            if err > p["max_reprojection"] * iod_px or tvec[2] <= 0:
+                guess = None
+                continue
+            guess = (rvec, tvec)
+            pose[i], pok[i] = np.r_[rvec, tvec], True
+            rgb = crop_to_rgb(crops[i])
+            texture = frontal_texture(rgb, points, rvec, tvec, K, v["crop"])
+            xy = frontal_landmarks(lms[i].astype(np.float64), shape[:, :2], surface, rvec, tvec, K)
+            uv = win.to_pixels(xy)
+            flm[i] = uv
+            m = clothing_mask(texture, uv[:17], p["cloth_dark_value"], p["cloth_white_saturation"],
+                              p["cloth_white_value"], p["cloth_dilate_px"])
+            texture = inpaint(texture, m, p["inpaint_radius"])
+            cloth[i] = m
+            tex[i] = cv2.cvtColor(texture, cv2.COLOR_RGB2YUV_I420)
+    dst["texture"][a:b] = tex
+    dst["clothing_mask"][a:b] = cloth
+    dst["frontal_landmarks"][a:b] = flm
+    dst["pose"][a:b] = pose
+    dst["pose_valid"][a:b] = pok
+    dst["reprojection_error"][a:b] = rerr
+    return int(pok.sum())
+
+
+def run(params: dict, ingest_path: str, landmarks_path: str, out: str) -> dict:
+    p = params["frontalize"]
+    src, lmg = open_group(ingest_path), open_group(landmarks_path)
+    videos = [dict(v) for v in lmg.attrs["videos"]]
+    valid = np.asarray(lmg["valid"][...])
+    n, shard = len(valid), src["crops"].shards[0]
+    pick = sample_model_frames(videos, valid, p["model_frames"])
+    lms = np.asarray(lmg["landmarks"].get_orthogonal_selection((pick,)), np.float64)
+    by_frame = {}
+    for v in videos:
+        by_frame.update({i: v for i in range(v["first_frame"], v["first_frame"] + v["n_frames"])})
+    Ks = [intrinsics(by_frame[i]["width"], by_frame[i]["height"], p["focal_factor"]) for i in pick]
+    shape, report = build_model(lms, Ks, p)
+    surface, known = build_surface(shape, p)
+    win = texture_window(p)
+    points = win.grid_points(surface)
+    T = win.size
+    with atomic_output(out) as tmp, client_for(params["cluster"]) as client:
+        g = create_group(tmp)
+        mg = g.create_group("model")
+        for name, arr in (("shape3d", shape), ("depth", surface.depth), ("face_region", known),
+                          ("texture_points", points)):
+            mg.create_array(name, data=np.asarray(arr, np.float32 if arr.dtype != bool else bool))
+        create_timed(g, "texture", n, (T * 3 // 2, T), "uint8", shard, p["chunk_frames"])
+        create_timed(g, "clothing_mask", n, (T, T), "bool", shard, p["chunk_frames"], fill_value=False)
+        create_timed(g, "frontal_landmarks", n, (68, 2), "float32", shard, shard)
+        create_timed(g, "pose", n, (6,), "float32", shard, shard)
+        create_timed(g, "pose_valid", n, (), "bool", shard, shard, fill_value=False)
+        create_timed(g, "reprojection_error", n, (), "float32", shard, shard, fill_value=float("nan"))
+        ranges = shard_ranges(n, shard)
+        common = dict(ingest=str(Path(ingest_path).absolute()), landmarks=str(Path(landmarks_path).absolute()),
+                      out=str(tmp), params=p, surface=(surface.x0, surface.y0, surface.step),
+                      window=dict(x0=win.x0, y0=win.y0, mm_per_px=win.mm_per_px, size=win.size))
+        jobs = [dict(common, start=a, stop=b, videos=[v for v in videos if v["first_frame"] < b
+                                                      and v["first_frame"] + v["n_frames"] > a]) for a, b in ranges]
+        ok = sum(run_tasks(client, frontalize_block, jobs, "frontalize", "frame", [b - a for a, b in ranges]))
+        g.attrs.update(dict(videos=videos, model=report, texture_window=common["window"],
+                            grid=dict(x0=surface.x0, y0=surface.y0, step=surface.step), focal_factor=p["focal_factor"],
+                            landmark_units="texture pixels", pose_units="rvec rad, tvec mm (model to camera)"))
+        pose = np.asarray(g["pose"][...])
+        pv = np.asarray(g["pose_valid"][...])
+        if pv.any():
+            ang = np.array([euler_degrees(r) for r in pose[pv, :3]])
+            log.info("head pose range (yaw, pitch, roll) deg: %s", np.ptp(ang, axis=0).round(1).tolist())
+        log.info("frontalized %d of %d frames", ok, n)
+    return report
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="lipsynth frontalize", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("-v", "--verbose", action="store_true")
+    a = ap.parse_args(argv)
+    setup_logging(a.verbose)
+    params = load_params(a.params)
+    return run_main(run, params, params["ingest"]["out"], params["landmarks"]["out"], params["frontalize"]["out"])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
