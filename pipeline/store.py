@@ -92,5 +92,13 @@ def video_of_frames(videos: list[dict], start: int, stop: int):
             yield v, lo, hi
 
 
-def as_numpy(a) -> np.ndarray:
-    return np.asarray(a[...])
+def rgb_to_i420(rgb: np.ndarray) -> np.ndarray:
+    """(S, S, 3) RGB uint8 → (3S/2, S) I420 (YUV 4:2:0): the store's image format, 1.5 B/pixel."""
+    import cv2
+    return cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2YUV_I420)
+
+
+def i420_to_rgb(i420: np.ndarray) -> np.ndarray:
+    """(3S/2, S) I420 → (S, S, 3) RGB uint8. The first S rows alone are the grey (luma) image."""
+    import cv2
+    return cv2.cvtColor(np.ascontiguousarray(i420), cv2.COLOR_YUV2RGB_I420)

@@ -32,7 +32,8 @@ from pipeline.geometry import euler_degrees, intrinsics, solve_pose
 from pipeline.params import load_params
 from pipeline.parallel import client_for, run_tasks
 from pipeline.runner import run_main, setup_logging
-from pipeline.store import atomic_output, create_group, create_timed, open_group, shard_ranges, video_of_frames
+from pipeline.store import (atomic_output, create_group, create_timed, i420_to_rgb, open_group, rgb_to_i420,
+                            shard_ranges, video_of_frames)
 from stages.frontalize import model3d
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
 from stages.frontalize.warp import (Surface, TextureWindow, clothing_mask, frontal_landmarks, frontal_texture,
@@ -87,7 +88,6 @@ def frontalize_block(job: dict) -> int:
     import cv2
     import zarr
     cv2.setNumThreads(1)
-    from stages.ingest.ingest import crop_to_rgb
 
     p = job["params"]
     src = zarr.open_group(job["ingest"], mode="r")
@@ -125,7 +125,7 @@ def frontalize_block(job: dict) -> int:
                 continue
             guess = (rvec, tvec)
             pose[i], pok[i] = np.r_[rvec, tvec], True
-            rgb = crop_to_rgb(crops[i])
+            rgb = i420_to_rgb(crops[i])
             texture = frontal_texture(rgb, points, rvec, tvec, K, v["crop"])
             xy = frontal_landmarks(lms[i].astype(np.float64), shape[:, :2], surface, rvec, tvec, K)
             uv = win.to_pixels(xy)
@@ -134,7 +134,7 @@ def frontalize_block(job: dict) -> int:
                               p["cloth_white_value"], p["cloth_dilate_px"])
             texture = inpaint(texture, m, p["inpaint_radius"])
             cloth[i] = m
-            tex[i] = cv2.cvtColor(texture, cv2.COLOR_RGB2YUV_I420)
+            tex[i] = rgb_to_i420(texture)
     dst["texture"][a:b] = tex
     dst["clothing_mask"][a:b] = cloth
     dst["frontal_landmarks"][a:b] = flm

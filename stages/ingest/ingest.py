@@ -40,7 +40,7 @@ from pipeline.errors import BadInputError, LipsynthError, ParameterError
 from pipeline.params import load_params
 from pipeline.parallel import client_for, run_tasks
 from pipeline.runner import run_main, setup_logging
-from pipeline.store import atomic_output, create_group, create_timed, shard_ranges, video_of_frames
+from pipeline.store import atomic_output, create_group, create_timed, rgb_to_i420, shard_ranges
 
 log = logging.getLogger("lipsynth.ingest")
 VIDEO_EXTS = {".mp4", ".mov", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".m4v"}
@@ -127,12 +127,7 @@ def cut_crop(rgb: np.ndarray, box: tuple[float, float, float], size: int) -> np.
     else:
         m = np.array([[1 / s, 0, -x0 / s], [0, 1 / s, -y0 / s]], np.float64)
     crop = cv2.warpAffine(rgb, m, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return cv2.cvtColor(crop, cv2.COLOR_RGB2YUV_I420)
-
-
-def crop_to_rgb(i420: np.ndarray) -> np.ndarray:
-    """(3S/2, S) I420 → (S, S, 3) RGB uint8."""
-    return cv2.cvtColor(np.ascontiguousarray(i420), cv2.COLOR_YUV2RGB_I420)
+    return rgb_to_i420(crop)
 
 
 # ---------------------------------------------------------------- per-video work (on a worker)

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import av
+import av.codec.context
 import cv2
 import dlib
 import numpy as np
@@ -156,7 +157,7 @@ FIXED_HIGHER_FORMANTS = ((3400.0, 250.0), (4400.0, 300.0))
 OPEN_BASIS = (
     (4, 0.0, 0.01), (5, 0.0, 0.03), (6, 0.0, 0.07), (7, 0.0, 0.11), (8, 0.0, 0.14),
     (9, 0.0, 0.11), (10, 0.0, 0.07), (11, 0.0, 0.03), (12, 0.0, 0.01),
-    (48, 0.01, 0.035), (54, -0.01, 0.035), (60, 0.01, 0.035), (64, -0.01, 0.035),
+    (48, 0.025, 0.05), (54, -0.025, 0.05), (60, 0.025, 0.05), (64, -0.025, 0.05),
     (49, 0.0, -0.004), (50, 0.0, -0.006), (51, 0.0, -0.006), (52, 0.0, -0.006), (53, 0.0, -0.004),
     (61, 0.0, -0.012), (62, 0.0, -0.012), (63, 0.0, -0.012),
     (55, 0.0, 0.07), (56, 0.0, 0.125), (57, 0.0, 0.14), (58, 0.0, 0.125), (59, 0.0, 0.07),
@@ -170,9 +171,9 @@ WIDTH_BASIS = (
     (58, -0.01, -0.004), (56, 0.01, -0.004), (57, 0.0, -0.004),
 )
 ROUND_BASIS = (
-    (48, 0.055, 0.0), (60, 0.06, 0.0), (54, -0.055, 0.0), (64, -0.06, 0.0),
-    (49, 0.03, -0.01), (59, 0.03, 0.01), (61, 0.035, -0.008), (67, 0.035, 0.008),
-    (53, -0.03, -0.01), (55, -0.03, 0.01), (63, -0.035, -0.008), (65, -0.035, 0.008),
+    (48, 0.08, 0.0), (60, 0.085, 0.0), (54, -0.08, 0.0), (64, -0.085, 0.0),
+    (49, 0.045, -0.01), (59, 0.045, 0.01), (61, 0.045, -0.008), (67, 0.045, 0.008),
+    (53, -0.045, -0.01), (55, -0.045, 0.01), (63, -0.045, -0.008), (65, -0.045, 0.008),
     (50, 0.012, -0.014), (51, 0.0, -0.015), (52, -0.012, -0.014),
     (58, 0.012, 0.014), (57, 0.0, 0.015), (56, -0.012, 0.014),
     (62, 0.0, -0.01), (66, 0.0, 0.01),
@@ -384,6 +385,33 @@ def eyelid_colours(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     return np.array(colours, dtype=np.float64)
 
 
+def remove_teeth(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """Inpaint the photo's smiling teeth and dark mouth corners with lip texture.
+
+    The mouth interior is painted per frame, so the template must show lips
+    only: the inner-lip polygon (widened to the outer lip corners) and the
+    bright/dark non-lip pixels just around it are filled from the surrounding lips.
+
+    Parameters
+    ----------
+    image : ndarray, (H, W, 3) uint8 RGB
+    landmarks : ndarray, (68, 2)
+
+    Returns
+    -------
+    ndarray, (H, W, 3) uint8
+    """
+    cavity_outline = landmarks[[48, 61, 62, 63, 54, 65, 66, 67]]
+    cavity = np.zeros(image.shape[:2], dtype=np.uint8)
+    cv2.fillPoly(cavity, [np.round(cavity_outline * 16).astype(np.int32)], 255, cv2.LINE_AA, 4)
+    cavity = cavity > 64
+    near_cavity = cv2.dilate(cavity.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV).astype(np.int32)
+    teeth_or_dark = ((hsv[..., 1] < 55) & (hsv[..., 2] > 210)) | (hsv[..., 2] < 165)
+    mask = (cavity | (near_cavity & teeth_or_dark)).astype(np.uint8) * 255
+    return cv2.inpaint(image, mask, 2, cv2.INPAINT_TELEA)
+
+
 def build_template(width: int, height: int) -> FaceTemplate:
     """Prepare the astronaut photo as an animatable face for ``width`` x ``height`` frames."""
     photo = skimage.data.astronaut()
@@ -392,6 +420,7 @@ def build_template(width: int, height: int) -> FaceTemplate:
     image = cv2.warpAffine(photo, affine, (width, height), flags=cv2.INTER_CUBIC,
                            borderMode=cv2.BORDER_REFLECT)
     landmarks = apply_affine(affine, photo_landmarks)
+    image = remove_teeth(image, landmarks)
     corners = apply_affine(affine, np.array([[box.left(), box.top()], [box.right(), box.bottom()]]))
     center = corners.mean(axis=0)
     face_width = float(corners[1, 0] - corners[0, 0])
@@ -793,12 +822,42 @@ def blend(region: np.ndarray, colour: np.ndarray, alpha: np.ndarray) -> np.ndarr
     return region * (1.0 - alpha[..., None]) + colour * alpha[..., None]
 
 
+def lip_curve(landmarks: np.ndarray, indices, xs: np.ndarray) -> np.ndarray:
+    """y (px) of the piecewise-linear lip line through ``landmarks[indices]`` at columns ``xs``."""
+    points = landmarks[list(indices)]
+    order = np.argsort(points[:, 0], kind="stable")
+    return np.interp(xs, points[order, 0], points[order, 1])
+
+
+def teeth_alpha(xs: np.ndarray, ys: np.ndarray, landmarks: np.ndarray, gap: float,
+                face_width: float) -> np.ndarray:
+    """Coverage (h, w) of the upper teeth (below the upper lip) and lower teeth (above the lower lip).
+
+    Upper teeth span the central 85 % of the mouth width, lower teeth the
+    central 60 %; both get shorter towards the corners and fade in as the lips
+    part by more than about a pixel.
+    """
+    corners = landmarks[[60, 64], 0]
+    center = 0.5 * (corners[0] + corners[1])
+    half_width = max(0.5 * (corners[1] - corners[0]), 1.0)
+    lateral = np.clip(np.abs(xs - center) / half_width, 0.0, 1.0)
+    taper = np.sqrt(np.clip(1.0 - lateral**2, 0.0, 1.0))
+    upper_height = min(0.5 * gap, 0.05 * face_width) * taper
+    lower_height = min(0.15 * gap, 0.02 * face_width) * taper
+    upper = np.clip(lip_curve(landmarks, UPPER_INNER_LIP, xs) + upper_height - ys + 0.5, 0.0, 1.0)
+    lower = np.clip(ys - lip_curve(landmarks, LOWER_INNER_LIP, xs) + lower_height + 0.5, 0.0, 1.0)
+    upper *= np.clip((0.85 - lateral) / 0.15, 0.0, 1.0)
+    lower *= np.clip((0.6 - lateral) / 0.2, 0.0, 1.0)
+    parted = np.clip(gap / 2.0 - 0.5, 0.0, 1.0)
+    return np.maximum(upper, lower) * parted
+
+
 def paint_mouth(frame: np.ndarray, landmarks: np.ndarray, face_width: float) -> None:
     """Paint the mouth interior inside the inner-lip polygon (in place).
 
-    Dark reddish cavity, upper teeth hanging from the upper lip, lower teeth and
-    tongue above the lower lip (visible as the mouth opens), plus a dark seam
-    where the lips meet.
+    Dark reddish cavity (darker towards the corners) with a tongue, upper teeth
+    hanging from the upper lip and lower teeth above the lower lip (both grow
+    with the opening), plus a dark seam where the lips meet.
 
     Parameters
     ----------
@@ -809,44 +868,33 @@ def paint_mouth(frame: np.ndarray, landmarks: np.ndarray, face_width: float) -> 
     """
     inner = landmarks[INNER_LIP]
     low = np.floor(inner.min(axis=0) - 3).astype(int).clip(0)
-    high = np.ceil(inner.max(axis=0) + 4).astype(int)
-    high = np.minimum(high, [frame.shape[1], frame.shape[0]])
+    high = np.minimum(np.ceil(inner.max(axis=0) + 4).astype(int), [frame.shape[1], frame.shape[0]])
     shape = (high[1] - low[1], high[0] - low[0])
-    region = frame[low[1]:high[1], low[0]:high[0]].astype(np.float32)
-    outline = catmull_rom_closed(inner)
-    cavity = polygon_alpha(shape, outline, low)
+    ys, xs = np.mgrid[low[1]:high[1], low[0]:high[0]].astype(np.float64)
+    region = frame[low[1]:high[1], low[0]:high[0]].astype(np.float64)
     gap = float(np.mean(landmarks[[67, 66, 65], 1] - landmarks[[61, 62, 63], 1]))
-    ys, xs = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float32) + low[::-1, None, None]
-    mouth_center = inner.mean(axis=0)
-    half_width = max(0.5 * (inner[4, 0] - inner[0, 0]), 1.0)
-    lateral = np.clip(np.abs(xs - mouth_center[0]) / half_width, 0.0, 1.0)
-    shade = 1.0 - 0.55 * lateral**2
+    center = inner.mean(axis=0)
+    half_width = max(0.5 * (landmarks[64, 0] - landmarks[60, 0]), 1.0)
+    lateral = np.clip(np.abs(xs - center[0]) / half_width, 0.0, 1.0)
+    shade = (1.0 - 0.5 * lateral**2)[..., None]
 
-    interior = np.array([70.0, 22.0, 28.0]) * (0.6 + 0.4 * shade)[..., None]
-    tongue_y = landmarks[66, 1] - 0.25 * gap
-    tongue = np.exp(-((xs - mouth_center[0]) / (0.55 * half_width))**2
-                    - ((ys - tongue_y) / max(0.3 * gap, 0.5))**2)
-    interior = blend(interior, np.array([150.0, 70.0, 72.0]) * 0.8, 0.6 * tongue * min(gap / 10.0, 1.0))
+    interior = np.array([72.0, 22.0, 28.0]) * (0.5 + 0.5 * shade)
+    tongue_y = landmarks[66, 1] - 0.2 * gap
+    tongue = np.exp(-((xs - center[0]) / (0.5 * half_width))**2 - ((ys - tongue_y) / max(0.25 * gap, 0.5))**2)
+    interior = blend(interior, np.array([125.0, 55.0, 60.0]), 0.7 * tongue * min(gap / 12.0, 1.0))
+    tooth_width = 0.045 * face_width
+    separation = np.cos(np.pi * (xs - center[0]) / tooth_width) ** 16
+    teeth = np.array([228.0, 220.0, 206.0]) * shade * (1.0 - 0.1 * separation)[..., None]
+    interior = blend(interior, teeth, teeth_alpha(xs, ys, landmarks, gap, face_width))
 
-    upper_teeth_height = min(0.45 * gap, 0.045 * face_width)
-    upper_teeth = catmull_rom_closed(np.concatenate([
-        landmarks[UPPER_INNER_LIP[1:4]] - [0.0, 2.0],
-        landmarks[UPPER_INNER_LIP[3:0:-1]] + [0.0, upper_teeth_height]]))
-    lower_teeth_height = min(0.2 * gap, 0.025 * face_width)
-    lower_teeth = catmull_rom_closed(np.concatenate([
-        landmarks[[67, 66, 65]] + [0.0, 2.0],
-        landmarks[[65, 66, 67]] - [0.0, lower_teeth_height]]))
-    teeth_colour = np.array([226.0, 218.0, 204.0]) * shade[..., None]
-    teeth_alpha = np.clip(polygon_alpha(shape, upper_teeth, low) + polygon_alpha(shape, lower_teeth, low),
-                          0.0, 1.0)
-    interior = blend(interior, teeth_colour, teeth_alpha)
-
-    region = region * (1.0 - cavity[..., None]) + interior * cavity[..., None]
-    seam = np.zeros(shape, dtype=np.uint8)
-    seam_points = np.round((landmarks[UPPER_INNER_LIP] - low) * 16).astype(np.int32)
-    cv2.polylines(seam, [seam_points], False, 255, thickness=1, lineType=cv2.LINE_AA, shift=4)
-    seam_alpha = 0.55 * seam.astype(np.float32) / 255.0
-    region = blend(region, np.array([95.0, 40.0, 45.0]), seam_alpha)
+    cavity = polygon_alpha(shape, catmull_rom_closed(inner), low)
+    region = blend(region, interior, cavity)
+    seam_x = np.arange(landmarks[60, 0], landmarks[64, 0] + 0.5, 1.0)
+    seam = np.stack([seam_x, lip_curve(landmarks, UPPER_INNER_LIP, seam_x)], axis=1)
+    seam_mask = np.zeros(shape, dtype=np.uint8)
+    cv2.polylines(seam_mask, [np.round((seam - low) * 16).astype(np.int32)], False, 255,
+                  thickness=1, lineType=cv2.LINE_AA, shift=4)
+    region = blend(region, np.array([110.0, 50.0, 55.0]), 0.35 * seam_mask / 255.0)
     frame[low[1]:high[1], low[0]:high[0]] = np.clip(region + 0.5, 0, 255).astype(np.uint8)
 
 
@@ -1199,10 +1247,10 @@ def write_mp4(path: Path, frames, audio: np.ndarray, fps: int, sample_rate: int,
         video = container.add_stream("libx264", rate=fps, options=dict(VIDEO_OPTIONS))
         video.width, video.height, video.pix_fmt = width, height, "yuv420p"
         video.codec_context.thread_count = 1
-        video.codec_context.flags |= "BITEXACT"
+        video.codec_context.flags |= av.codec.context.Flags.bitexact
         sound = container.add_stream("aac", rate=sample_rate, layout="mono")
         sound.bit_rate = AUDIO_BIT_RATE
-        sound.codec_context.flags |= "BITEXACT"
+        sound.codec_context.flags |= av.codec.context.Flags.bitexact
         audio_written = 0
         for index, rgb in enumerate(frames):
             frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")

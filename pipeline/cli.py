@@ -1,0 +1,39 @@
+"""``lipsynth`` — command-line entry point. Each subcommand is one pipeline stage.
+
+Usually you run the whole pipeline with ``dvc repro`` (only stages whose code, params or inputs
+changed are rerun); the subcommands run one stage by hand with the same params file.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+
+COMMANDS = {
+    "synthetic-speaker": ("stages.synthetic_speaker.generate", "generate the embedded synthetic speaker corpus"),
+    "ingest": ("stages.ingest.ingest", "decode videos: face crops, 16 kHz audio, MFCC features → store/ingest.zarr"),
+    "landmarks": ("stages.landmarks.landmarks", "dlib 68-point landmarks for every frame → store/landmarks.zarr"),
+    "frontalize": ("stages.frontalize.frontalize", "3D model, pose, frontal textures → store/frontalize.zarr"),
+}
+
+
+def usage() -> str:
+    lines = ["usage: lipsynth COMMAND [options]   (lipsynth COMMAND --help for details)", "", "commands:"]
+    lines += [f"  {name:<18} {desc}" for name, (_, desc) in COMMANDS.items()]
+    lines += ["", "The whole pipeline: dvc repro   (params in params.yaml; see README.md)"]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(usage())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"lipsynth: error: unknown command '{name}'\n\n{usage()}", file=sys.stderr)
+        return 2
+    return importlib.import_module(COMMANDS[name][0]).main(rest)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
