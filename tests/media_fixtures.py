@@ -1,0 +1,61 @@
+"""Small media files made on the fly for tests (PyAV), with a real face that dlib finds."""
+from fractions import Fraction
+
+import av
+import numpy as np
+import skimage.data
+
+
+def face_frames(n, size=(320, 256)):
+    """(n, H, W, 3) frames of a real face photo drifting slowly."""
+    photo = skimage.data.astronaut()
+    w, h = size
+    out = []
+    for i in range(n):
+        dx, dy = int(10 * np.sin(i / 7)), int(6 * np.cos(i / 11))
+        out.append(np.ascontiguousarray(photo[40 + dy:40 + dy + h, 60 + dx:60 + dx + w]))
+    return np.stack(out)
+
+
+def make_clip(path, n_frames=50, fps=Fraction(25), audio_rate=16000, channels=1, audio_delay=0.0,
+              tone_at=None, frames=None, audio=True):
+    """Write an H.264 clip; audio (a low hum, plus a loud tone from ``tone_at`` s of audio time)
+    starts ``audio_delay`` s after (or, negative, before) the first video frame."""
+    frames = face_frames(n_frames) if frames is None else frames
+    with av.open(str(path), "w") as c:
+        v = c.add_stream("libx264", rate=fps)
+        v.height, v.width = frames.shape[1:3]
+        v.pix_fmt = "yuv420p"
+        a = None
+        if audio:
+            a = c.add_stream("aac", rate=audio_rate)
+            a.layout = "stereo" if channels == 2 else "mono"
+        video_start = int(round(max(0.0, -audio_delay) * float(fps)))   # negative delay: video starts later
+        for i, img in enumerate(frames):
+            fr = av.VideoFrame.from_ndarray(img, format="rgb24")
+            fr.pts = video_start + i
+            fr.time_base = 1 / Fraction(fps)
+            for p in v.encode(fr):
+                c.mux(p)
+        for p in v.encode():
+            c.mux(p)
+        if a is not None:
+            seconds = n_frames / float(fps) + 0.5
+            t = np.arange(int(seconds * audio_rate)) / audio_rate
+            x = 0.01 * np.sin(2 * np.pi * 150 * t)
+            if tone_at is not None:
+                x = np.where(t >= tone_at, 0.5 * np.sin(2 * np.pi * 440 * t), x)
+            pcm = np.repeat(x[None].astype(np.float32), channels, 0)
+            start = int(round(max(0.0, audio_delay) * audio_rate))
+            step = 1024
+            for i in range(0, pcm.shape[1], step):
+                fr = av.AudioFrame.from_ndarray(np.ascontiguousarray(pcm[:, i:i + step].T.reshape(1, -1)),
+                                                format="flt", layout=a.layout.name)
+                fr.sample_rate = audio_rate
+                fr.pts = start + i
+                fr.time_base = Fraction(1, audio_rate)
+                for p in a.encode(fr):
+                    c.mux(p)
+            for p in a.encode():
+                c.mux(p)
+    return path

@@ -1,0 +1,107 @@
+"""ingest: splitting, timestamps, rates, alignment and bad input."""
+import re
+import subprocess
+import sys
+from fractions import Fraction
+
+import numpy as np
+import pytest
+import yaml
+
+from pipeline import media
+from pipeline.errors import BadInputError
+from pipeline.params import load_params
+from stages.ingest.ingest import ingest_video, list_videos, split_videos
+from tests.conftest import ROOT, shared
+from tests.media_fixtures import face_frames, make_clip
+
+
+@pytest.fixture
+def ingest_params():
+    return load_params(ROOT / "params.yaml")["ingest"]
+
+
+def run_one(path, params, tmp_path):
+    return ingest_video(dict(path=str(path), params=params, scratch=str(tmp_path)))
+
+
+def test_split_is_deterministic_by_video_and_stable():
+    names = [f"clip{i:03d}" for i in range(50)]
+    a = split_videos(names, 0.2, seed=0)
+    assert a == split_videos(list(reversed(names)), 0.2, seed=0)
+    assert sum(s == "val" for s in a.values()) == 10
+    assert a != split_videos(names, 0.2, seed=1)
+    assert sum(s == "val" for s in split_videos(names[:2], 0.2, 0).values()) == 1
+
+
+@pytest.mark.parametrize("fps,rate,channels,delay", [
+    (Fraction(30000, 1001), 48000, 2, 0.3),     # 29.97 fps, stereo 48 kHz, audio starts late
+    (Fraction(25), 44100, 1, -0.2),             # audio starts before the video
+    (Fraction(25), 16000, 2, 0.0),
+])
+def test_rates_channels_and_audio_alignment(tmp_path, ingest_params, fps, rate, channels, delay):
+    path = make_clip(tmp_path / "c.mp4", n_frames=60, fps=fps, audio_rate=rate, channels=channels,
+                     audio_delay=delay, tone_at=1.0)
+    e = run_one(path, ingest_params, tmp_path)
+    assert "error" not in e, e
+    assert e["n_frames"] == 60 and e["fps"] == pytest.approx(float(fps), rel=1e-4)
+    assert e["n_samples"] == round(60 / float(fps) * 16000)
+    assert e["n_mfcc"] == 1 + e["n_samples"] // 160
+    assert e["audio_offset"] == pytest.approx(delay, abs=0.03)
+    audio = np.load(e["scratch"] + ".audio.npy").astype(float) / 32767
+    times = np.load(e["scratch"] + ".time.npy")
+    assert times[0] == 0 and np.allclose(np.diff(times), 1 / float(fps), atol=1e-3)
+    env = np.convolve(np.abs(audio), np.ones(160) / 160, "same")
+    onset = np.argmax(env > 0.5 * env.max()) / 16000
+    assert onset == pytest.approx(1.0 + delay, abs=0.04)       # the tone is heard when it should be
+
+
+def test_list_videos_folder_glob_and_errors(tmp_path):
+    make_clip(tmp_path / "a.mp4", 10)
+    make_clip(tmp_path / "b.mp4", 10)
+    assert [p.rsplit("/", 1)[1] for p in list_videos(str(tmp_path))] == ["a.mp4", "b.mp4"]
+    assert len(list_videos(str(tmp_path / "*.mp4"))) == 2
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BadInputError, match="empty: folder holds no video files"):
+        list_videos(str(tmp_path / "empty"))
+    with pytest.raises(BadInputError, match="nope.mp4: file not found"):
+        list_videos(str(tmp_path / "nope.mp4"))
+
+
+def test_bad_inputs_name_file_and_problem(tmp_path, ingest_params):
+    zero = tmp_path / "zero.mp4"
+    zero.write_bytes(b"")
+    junk = tmp_path / "junk.mp4"
+    junk.write_bytes(np.random.default_rng(0).integers(0, 255, 50000, dtype=np.uint8).tobytes())
+    silent_video = make_clip(tmp_path / "mute.mp4", 30, audio=False)
+    noface = make_clip(tmp_path / "noface.mp4", 30, frames=np.full((30, 128, 160, 3), 90, np.uint8))
+    small = np.full((30, 256, 320, 3), 120, np.uint8)
+    small[:, 100:164, 100:180] = face_frames(30)[:, ::4, ::4]           # a face ~22 px wide
+    tiny = make_clip(tmp_path / "tiny.mp4", 30, frames=small)
+    short = make_clip(tmp_path / "short.mp4", 5)
+    cases = {zero: "empty", junk: "cannot be opened", silent_video: "no audio track",
+             noface: "no face found", tiny: "face too small|no face found", short: "too short"}
+    for path, problem in cases.items():
+        e = run_one(path, ingest_params, tmp_path)
+        assert "error" in e, path
+        assert str(path) in e["error"]
+        assert len(e["error"].splitlines()) == 1
+        assert re.search(problem, e["error"]), e["error"]
+    with pytest.raises(BadInputError, match="no video stream"):
+        media.probe(shared("hdtf", "RD_Radio31_000.wav"))
+
+
+def test_real_video_without_audio_fails_cleanly_through_the_cli(tmp_path):
+    noaudio = shared("obama", "obama_noaudio.mp4")
+    params = load_params(ROOT / "params.yaml")
+    params["data"]["videos"] = str(noaudio)
+    params["ingest"]["out"] = str(tmp_path / "ingest.zarr")
+    params["cluster"]["n_workers"] = 1
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    r = subprocess.run([sys.executable, "-m", "stages.ingest.ingest", "--params", str(tmp_path / "p.yaml")],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2
+    errors = [line for line in r.stderr.splitlines() if line.startswith("lipsynth: error:")]
+    assert len(errors) == 1 and "obama_noaudio.mp4: no audio track" in errors[0]
+    assert not (tmp_path / "ingest.zarr").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "temporary output left behind"
