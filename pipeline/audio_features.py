@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft
 import scipy.signal
-import librosa
 
 from .errors import ParameterError
 
@@ -47,14 +46,30 @@ def frame_signal(samples: np.ndarray, win: int = WIN, hop: int = HOP) -> np.ndar
     return padded[idx]
 
 
-_MEL = None
+_MEL: np.ndarray | None = None
 
 
-def mel_filterbank() -> np.ndarray:
-    """(40, 257) triangular mel filters for a 512-point FFT at 16 kHz (HTK mel scale)."""
+def hz_to_mel(f):
+    """HTK mel scale."""
+    return 2595.0 * np.log10(1.0 + np.asarray(f, np.float64) / 700.0)
+
+
+def mel_to_hz(m):
+    return 700.0 * (10.0 ** (np.asarray(m, np.float64) / 2595.0) - 1.0)
+
+
+def mel_filterbank(n_mels: int = N_MELS, n_fft: int = N_FFT, sample_rate: int = SAMPLE_RATE) -> np.ndarray:
+    """(n_mels, n_fft // 2 + 1) triangular filters with peak 1, equally spaced on the HTK mel
+    scale from 0 Hz to Nyquist."""
     global _MEL
-    if _MEL is None:
-        _MEL = librosa.filters.mel(sr=SAMPLE_RATE, n_fft=N_FFT, n_mels=N_MELS, htk=True, norm=None)
+    if _MEL is not None and _MEL.shape == (n_mels, n_fft // 2 + 1):
+        return _MEL
+    edges = mel_to_hz(np.linspace(0.0, hz_to_mel(sample_rate / 2), n_mels + 2))
+    bins = np.linspace(0.0, sample_rate / 2, n_fft // 2 + 1)
+    lo, mid, hi = edges[:-2, None], edges[1:-1, None], edges[2:, None]
+    up = (bins[None] - lo) / (mid - lo)
+    down = (hi - bins[None]) / (hi - mid)
+    _MEL = np.maximum(0.0, np.minimum(up, down))
     return _MEL
 
 

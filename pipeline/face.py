@@ -38,6 +38,16 @@ def detect_faces(gray: np.ndarray, upsample: int = 0) -> list[tuple[np.ndarray, 
     return sorted(out, key=lambda ds: -ds[1])
 
 
+def detect_face(gray: np.ndarray, max_upsample: int = 1) -> tuple[np.ndarray, float] | None:
+    """Best face box and score, trying the cheap un-upsampled pyramid first (faces ≥ 80 px),
+    then up to ``max_upsample`` doublings for smaller faces. None if there is no face."""
+    for up in range(max_upsample + 1):
+        dets = detect_faces(gray, up)
+        if dets:
+            return dets[0]
+    return None
+
+
 def predict_landmarks(gray: np.ndarray, box) -> np.ndarray:
     """68 landmarks (68, 2) float32 pixel coordinates inside ``box`` = [x0, y0, x1, y1]."""
     import dlib

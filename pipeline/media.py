@@ -59,14 +59,25 @@ def probe(path) -> VideoInfo:
                          a.codec_context.channels if a else None)
 
 
-def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Iterator[tuple[float, np.ndarray]]:
+def yuv_planes(frame: av.VideoFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Y (H, W), U and V (⌈H/2⌉, ⌈W/2⌉) uint8 planes of a frame, converted to 4:2:0 if needed."""
+    if frame.format.name != "yuv420p":
+        frame = frame.reformat(format="yuv420p")
+    out = []
+    for plane in frame.planes:
+        buf = np.frombuffer(plane, np.uint8).reshape(-1, plane.line_size)
+        out.append(buf[:plane.height, :plane.width])
+    return out[0], out[1], out[2]
+
+
+def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Iterator[tuple[float, object]]:
     """Yield ``(t, image)`` for each decoded frame.
 
     Parameters
     ----------
     fmt : str
-        PyAV pixel format of the returned array: ``rgb24`` gives (H, W, 3) uint8,
-        ``gray`` gives (H, W) uint8.
+        ``rgb24`` gives (H, W, 3) uint8; ``yuv`` gives the (Y, U, V) planes of ``yuv_planes``
+        (no colour conversion: cheapest); ``gray`` gives the Y plane (H, W).
     keyframes_only : bool
         Decode only key frames (fast sparse sampling of a long video).
 
@@ -74,19 +85,23 @@ def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Itera
     ------
     t : float
         Presentation time in seconds (stream clock).
-    image : ndarray
+    image : ndarray or tuple of ndarray
     """
     with _open(path) as c:
         if not c.streams.video:
             raise BadInputError(path, "no video stream")
         v = c.streams.video[0]
-        v.thread_type = "AUTO"
         if keyframes_only:
             v.codec_context.skip_frame = "NONKEY"
         try:
             for frame in c.decode(v):
                 t = float(frame.pts * v.time_base) if frame.pts is not None else float(frame.time or 0.0)
-                yield t, frame.to_ndarray(format=fmt)
+                if fmt == "yuv":
+                    yield t, yuv_planes(frame)
+                elif fmt == "gray":
+                    yield t, yuv_planes(frame)[0]
+                else:
+                    yield t, frame.to_ndarray(format=fmt)
         except av.error.FFmpegError as exc:
             raise BadInputError(path, f"video stream is corrupt ({exc})") from None
 

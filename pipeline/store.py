@@ -19,7 +19,8 @@ import numpy as np
 import zarr
 from zarr.codecs import BloscCodec, BloscShuffle
 
-COMPRESSOR = BloscCodec(cname="zstd", clevel=5, shuffle=BloscShuffle.bitshuffle)
+COMPRESSOR = BloscCodec(cname="zstd", clevel=5, shuffle=BloscShuffle.bitshuffle)     # numbers
+IMAGE_COMPRESSOR = BloscCodec(cname="zstd", clevel=3, shuffle=BloscShuffle.noshuffle)  # uint8 pixels
 
 
 @contextlib.contextmanager
@@ -70,7 +71,7 @@ def create_timed(group: zarr.Group, name: str, length: int, item_shape: tuple, d
         name, shape=shape, dtype=dtype,
         chunks=(chunk_len,) + tuple(item_shape),
         shards=(shard_len,) + tuple(item_shape),
-        compressors=COMPRESSOR, fill_value=fill_value)
+        compressors=IMAGE_COMPRESSOR if np.dtype(dtype) == np.uint8 else COMPRESSOR, fill_value=fill_value)
 
 
 def shard_ranges(length: int, shard_len: int) -> list[tuple[int, int]]:

@@ -26,6 +26,11 @@ def test_mfcc_matches_librosa_reference():
     np.testing.assert_allclose(ours[:, :13], ref, rtol=1e-3, atol=2e-3)
 
 
+def test_mel_filterbank_matches_librosa_htk():
+    ref = librosa.filters.mel(sr=16000, n_fft=512, n_mels=40, htk=True, norm=None)
+    np.testing.assert_allclose(af.mel_filterbank(), ref, atol=1e-6)
+
+
 def test_log_energy_and_deltas():
     x = known_signal()
     f = af.mfcc_features(x)

@@ -70,10 +70,14 @@ def frontal_texture(image: np.ndarray, points: np.ndarray, rvec, tvec, K: np.nda
     -------
     (T, T, 3) uint8 frontal texture.
     """
-    uv = project(points.reshape(-1, 3), rvec, tvec, K)
+    R = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3))[0]
     x0, y0, s = image_from_frame
-    mx = ((uv[:, 0] - x0) / s).astype(np.float32).reshape(points.shape[:2])
-    my = ((uv[:, 1] - y0) / s).astype(np.float32).reshape(points.shape[:2])
+    A = np.array([[1 / s, 0, -x0 / s], [0, 1 / s, -y0 / s], [0, 0, 1]]) @ K    # frame → image pixels
+    M = (A @ R).astype(np.float32)
+    b = (A @ np.asarray(tvec, np.float64).reshape(3)).astype(np.float32)
+    uvw = points.reshape(-1, 3).astype(np.float32, copy=False) @ M.T + b
+    mx = (uvw[:, 0] / uvw[:, 2]).reshape(points.shape[:2])
+    my = (uvw[:, 1] / uvw[:, 2]).reshape(points.shape[:2])
     return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
@@ -93,18 +97,14 @@ def frontal_landmarks(landmarks: np.ndarray, start_xy: np.ndarray, surface: Surf
     (P, 2) model coordinates (mm) on the canonical plane.
     """
     xy = start_xy.astype(np.float64).copy()
-    h = 0.5  # mm, finite-difference step
-
-    def proj(q):
-        return project(np.column_stack([q, surface.z(q[:, 0], q[:, 1])]), rvec, tvec, K)
-
+    h = 0.5                                                  # mm, finite-difference step
+    offsets = np.array([[0.0, 0.0], [h, 0.0], [0.0, h]])
+    n = len(xy)
     for _ in range(iterations):
-        p = proj(xy)
-        jx = (proj(xy + [h, 0]) - p) / h
-        jy = (proj(xy + [0, h]) - p) / h
-        J = np.stack([jx, jy], axis=-1)                  # (P, 2, 2)
-        r = landmarks - p
-        step = np.linalg.solve(J, r[..., None])[..., 0]
+        q = (xy[None] + offsets[:, None]).reshape(-1, 2)     # (3P, 2): point, +dx, +dy
+        p = project(np.column_stack([q, surface.z(q[:, 0], q[:, 1])]), rvec, tvec, K).reshape(3, n, 2)
+        J = np.stack([(p[1] - p[0]) / h, (p[2] - p[0]) / h], axis=-1)   # (P, 2, 2)
+        step = np.linalg.solve(J, (landmarks - p[0])[..., None])[..., 0]
         xy += np.clip(step, -20, 20)
         if np.max(np.abs(step)) < 1e-3:
             break

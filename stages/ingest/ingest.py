@@ -40,7 +40,7 @@ from pipeline.errors import BadInputError, LipsynthError, ParameterError
 from pipeline.params import load_params
 from pipeline.parallel import client_for, run_tasks
 from pipeline.runner import run_main, setup_logging
-from pipeline.store import atomic_output, create_group, create_timed, rgb_to_i420, shard_ranges
+from pipeline.store import atomic_output, create_group, create_timed, shard_ranges
 
 log = logging.getLogger("lipsynth.ingest")
 VIDEO_EXTS = {".mp4", ".mov", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".m4v"}
@@ -114,20 +114,36 @@ def crop_box(face_boxes: np.ndarray, crop_scale: float, shift_down: float) -> tu
     return float(cx - side / 2), float(cy - side / 2), float(side)
 
 
-def cut_crop(rgb: np.ndarray, box: tuple[float, float, float], size: int) -> np.ndarray:
-    """Resample the square ``box`` of an (H, W, 3) frame to (3S/2, S) I420 uint8, S = ``size``.
+def resample_plane(plane: np.ndarray, scale: float, off_x: float, off_y: float, size: int) -> np.ndarray:
+    """Resample one image plane: output pixel (u, v) ← input (off_x + scale·u, off_y + scale·v).
 
-    Outside the frame, border pixels are replicated.
+    Large downscales (scale > 1.5) are area-averaged first so that nothing aliases; outside the
+    input, border pixels are replicated.
+    """
+    if scale > 1.5:
+        plane = cv2.resize(plane, None, fx=1 / scale, fy=1 / scale, interpolation=cv2.INTER_AREA)
+        m = np.array([[1, 0, (off_x + 0.5) / scale - 0.5], [0, 1, (off_y + 0.5) / scale - 0.5]])
+    else:
+        m = np.array([[scale, 0, off_x], [0, scale, off_y]])
+    return cv2.warpAffine(plane, m, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_REPLICATE)
+
+
+def cut_crop(yuv: tuple[np.ndarray, np.ndarray, np.ndarray], box: tuple[float, float, float], size: int) -> np.ndarray:
+    """Resample the square ``box`` of a frame's 4:2:0 planes into a (3S/2, S) I420 crop, S = ``size``.
+
+    Works on the decoded Y, U, V planes directly (no RGB round trip). Crop pixel (u, v) is frame
+    pixel (x0 + s·u, y0 + s·v) with s = side / size; chroma samples are taken at the centre of
+    their 2×2 luma block.
     """
     x0, y0, side = box
-    s = side / size                     # frame pixels per crop pixel: frame_x = x0 + s * crop_x
-    if s > 1.5:                         # large downscale: area-average first (no aliasing)
-        rgb = cv2.resize(rgb, None, fx=1 / s, fy=1 / s, interpolation=cv2.INTER_AREA)
-        m = np.array([[1, 0, 0.5 - (x0 + 0.5) / s], [0, 1, 0.5 - (y0 + 0.5) / s]], np.float64)
-    else:
-        m = np.array([[1 / s, 0, -x0 / s], [0, 1 / s, -y0 / s]], np.float64)
-    crop = cv2.warpAffine(rgb, m, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return rgb_to_i420(crop)
+    s = side / size
+    y = resample_plane(yuv[0], s, x0, y0, size)
+    c = size // 2
+    coff = (s - 1) / 4                  # chroma sample c ↔ luma 2c + 0.5 on both images
+    u = resample_plane(yuv[1], s, x0 / 2 + coff, y0 / 2 + coff, c)
+    v = resample_plane(yuv[2], s, x0 / 2 + coff, y0 / 2 + coff, c)
+    return np.vstack([y, u.reshape(-1, size), v.reshape(-1, size)])
 
 
 # ---------------------------------------------------------------- per-video work (on a worker)
@@ -139,9 +155,9 @@ def find_face_boxes(path: str, max_samples: int, min_face_px: float, upsample: i
     pick = np.unique(np.linspace(0, len(keyframes) - 1, min(max_samples, len(keyframes))).round().astype(int))
     boxes, small = [], 0
     for i in pick:
-        dets = face.detect_faces(keyframes[i], upsample)
-        if dets:
-            box = dets[0][0]
+        found = face.detect_face(keyframes[i], upsample)
+        if found is not None:
+            box = found[0]
             if box[2] - box[0] < min_face_px:
                 small += 1
                 continue
@@ -167,9 +183,9 @@ def ingest_video(job: dict) -> dict:
         box = crop_box(boxes, p["crop_scale"], p["crop_shift_down"])
         size = p["crop_size"]
         times, crops = [], []
-        for t, img in media.iter_frames(path):
+        for t, yuv in media.iter_frames(path, fmt="yuv"):
             times.append(t)
-            crops.append(cut_crop(img, box, size))
+            crops.append(cut_crop(yuv, box, size))
         n = len(times)
         if n == 0:
             raise BadInputError(path, "no decodable video frames")
@@ -221,6 +237,8 @@ def layout(entries: list[dict]) -> list[dict]:
 
 def run(params: dict, out: str) -> list[dict]:
     data, p, cluster = params["data"], params["ingest"], params["cluster"]
+    if p["crop_size"] % 4:
+        raise ParameterError(f"ingest.crop_size={p['crop_size']}: must be a multiple of 4 (I420 storage)")
     paths = list_videos(data["videos"])
     splits = split_videos([video_name(q) for q in paths], data["val_fraction"], data["split_seed"])
     log.info("ingesting %d videos from %s", len(paths), data["videos"])

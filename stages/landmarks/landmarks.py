@@ -5,8 +5,8 @@ and whenever tracking is lost; in between, the face box for frame t+1 is derived
 landmarks (using the box/landmark relation measured at the last detection) and only the shape
 predictor (~2 ms) runs.
 
-Confidence: the predictor is run again from a box shifted by ``jitter`` × box size. On a face
-the predicted landmarks stay put; on clutter they follow the box. confidence = 1 − (mean
+Confidence: the predictor is run again from a box shifted diagonally by ``jitter`` × box size.
+On a face the predicted landmarks stay put; on clutter they follow the box. confidence = 1 − (mean
 landmark displacement / box displacement), in [0, 1]. A frame is valid when its confidence is
 at least ``min_confidence`` and the landmarks lie inside the crop.
 
@@ -54,13 +54,11 @@ def box_from_landmarks(lm: np.ndarray, relation: np.ndarray) -> np.ndarray:
 
 
 def landmark_confidence(gray: np.ndarray, box: np.ndarray, lm: np.ndarray, jitter: float) -> float:
-    """1 − (landmark displacement / box displacement) under two diagonal box shifts, in [0, 1]."""
+    """1 − (landmark displacement / box displacement) under a diagonal box shift, in [0, 1]."""
     d = jitter * (box[2] - box[0])
-    shifts = []
-    for sx, sy in ((d, d), (-d, d)):
-        lm2 = face.predict_landmarks(gray, box + np.array([sx, sy, sx, sy]))
-        shifts.append(np.mean(np.linalg.norm(lm2 - lm, axis=1)) / np.hypot(sx, sy))
-    return float(np.clip(1.0 - np.mean(shifts), 0.0, 1.0))
+    lm2 = face.predict_landmarks(gray, box + np.array([d, d, d, d]))
+    shift = np.mean(np.linalg.norm(lm2 - lm, axis=1)) / np.hypot(d, d)
+    return float(np.clip(1.0 - shift, 0.0, 1.0))
 
 
 def track_video(grays, p: dict):
@@ -82,9 +80,9 @@ def track_video(grays, p: dict):
         s = gray.shape[0]
         det = box is None or since >= p["detect_every"]
         if det:
-            dets = face.detect_faces(gray, p["detect_upsample"])
-            if dets:
-                box, since = dets[0][0], 0
+            found = face.detect_face(gray, p["detect_upsample"])
+            if found is not None:
+                box, since = found[0], 0
                 relation = None
         detected.append(det)
         if box is None:

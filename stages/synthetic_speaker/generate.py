@@ -65,6 +65,9 @@ CONTROL_RATE = 1000
 COARTICULATION_SIGMA_S = 0.035
 """Gaussian time constant (s) of the dominance-weighted mouth smoothing."""
 
+MIN_TRIANGLE_AREA = 0.5
+"""Mesh triangles smaller than this (px^2) in the frame are not rasterised."""
+
 FILTER_BLOCK = 80
 """Audio samples per block with constant formant-filter coefficients."""
 
@@ -131,13 +134,13 @@ PHONES = {
     "u": PhoneType("vowel", (0.20, -0.60, 1.0), 1.0, (320, 870, 2240), 0.8, None, 0.0, (0.07, 0.12)),
     "m": PhoneType("nasal", (-0.30, 0.0, 0.0), 3.0, (250, 1100, 2300), 0.35, None, 0.0, (0.05, 0.09)),
     "n": PhoneType("nasal", (0.18, 0.20, 0.0), 0.4, (250, 1500, 2500), 0.35, None, 0.0, (0.05, 0.08)),
-    "f": PhoneType("fricative", (0.06, 0.10, 0.0), 2.0, (400, 1300, 2500), 0.0, (1500, 7500), 0.12, (0.08, 0.12)),
-    "s": PhoneType("fricative", (0.10, 0.50, 0.0), 1.0, (400, 1700, 2600), 0.0, (4200, 7600), 0.5, (0.08, 0.13)),
-    "sh": PhoneType("fricative", (0.15, -0.20, 0.8), 1.5, (400, 1800, 2500), 0.0, (2200, 5000), 0.5, (0.08, 0.13)),
-    "p": PhoneType("stop", (-0.30, 0.0, 0.0), 3.0, (400, 900, 2300), 0.0, (400, 2500), 0.7, (0.07, 0.11)),
-    "b": PhoneType("stop", (-0.30, 0.0, 0.0), 3.0, (300, 900, 2300), 0.15, (400, 2000), 0.4, (0.06, 0.09)),
-    "t": PhoneType("stop", (0.15, 0.30, 0.0), 0.4, (400, 1700, 2600), 0.0, (3000, 7500), 0.7, (0.06, 0.10)),
-    "k": PhoneType("stop", (0.30, 0.10, 0.0), 0.4, (400, 1900, 2400), 0.0, (1200, 3200), 0.7, (0.07, 0.11)),
+    "f": PhoneType("fricative", (0.06, 0.10, 0.0), 2.0, (400, 1300, 2500), 0.0, (1500, 7500), 0.04, (0.08, 0.12)),
+    "s": PhoneType("fricative", (0.10, 0.50, 0.0), 1.0, (400, 1700, 2600), 0.0, (4500, 7800), 0.09, (0.08, 0.13)),
+    "sh": PhoneType("fricative", (0.15, -0.20, 0.8), 1.5, (400, 1800, 2500), 0.0, (1900, 4200), 0.1, (0.08, 0.13)),
+    "p": PhoneType("stop", (-0.30, 0.0, 0.0), 3.0, (400, 900, 2300), 0.0, (400, 2500), 0.25, (0.07, 0.11)),
+    "b": PhoneType("stop", (-0.30, 0.0, 0.0), 3.0, (300, 900, 2300), 0.15, (400, 2000), 0.15, (0.06, 0.09)),
+    "t": PhoneType("stop", (0.15, 0.30, 0.0), 0.4, (400, 1700, 2600), 0.0, (3000, 7500), 0.25, (0.06, 0.10)),
+    "k": PhoneType("stop", (0.30, 0.10, 0.0), 0.4, (400, 1900, 2400), 0.0, (1200, 3200), 0.25, (0.07, 0.11)),
 }
 
 VOWELS = ("a", "e", "i", "o", "u")
@@ -171,12 +174,12 @@ WIDTH_BASIS = (
     (58, -0.01, -0.004), (56, 0.01, -0.004), (57, 0.0, -0.004),
 )
 ROUND_BASIS = (
-    (48, 0.08, 0.0), (60, 0.085, 0.0), (54, -0.08, 0.0), (64, -0.085, 0.0),
+    (48, 0.07, 0.03), (60, 0.075, 0.03), (54, -0.07, 0.03), (64, -0.075, 0.03),
     (49, 0.045, -0.01), (59, 0.045, 0.01), (61, 0.045, -0.008), (67, 0.045, 0.008),
     (53, -0.045, -0.01), (55, -0.045, 0.01), (63, -0.045, -0.008), (65, -0.045, 0.008),
     (50, 0.012, -0.014), (51, 0.0, -0.015), (52, -0.012, -0.014),
     (58, 0.012, 0.014), (57, 0.0, 0.015), (56, -0.012, 0.014),
-    (62, 0.0, -0.01), (66, 0.0, 0.01),
+    (62, 0.0, -0.01), (66, 0.0, 0.006),
 )
 LIP_PROTRUSION = 0.08
 """Forward lip movement (face widths) at full rounding, used by the head rotation."""
@@ -759,13 +762,14 @@ def triangle_affines(source: np.ndarray, target: np.ndarray, triangles: np.ndarr
     -------
     affines : ndarray, (K, 3, 2)
         ``[x, y, 1] @ affines[k]`` is the source position of target pixel (x, y).
-    valid : ndarray, (K,) bool
-        False for (near) zero-area target triangles, which are not rasterised.
+    areas : ndarray, (K,)
+        Target triangle areas (px^2); triangles under ``MIN_TRIANGLE_AREA`` get
+        an arbitrary affine and must not be rasterised.
     """
     homogeneous = np.concatenate([target[triangles], np.ones((len(triangles), 3, 1))], axis=2)
-    valid = np.abs(np.linalg.det(homogeneous)) > 1e-3
-    homogeneous[~valid] = np.eye(3)
-    return np.linalg.solve(homogeneous, source[triangles]), valid
+    areas = 0.5 * np.abs(np.linalg.det(homogeneous))
+    homogeneous[areas < MIN_TRIANGLE_AREA] = np.eye(3)
+    return np.linalg.solve(homogeneous, source[triangles]), areas
 
 
 def piecewise_affine_maps(source: np.ndarray, target: np.ndarray, triangles: np.ndarray,
@@ -785,10 +789,14 @@ def piecewise_affine_maps(source: np.ndarray, target: np.ndarray, triangles: np.
         Source coordinates of every frame pixel.
     """
     height, width = shape
-    affines, valid = triangle_affines(source, target, triangles)
+    affines, areas = triangle_affines(source, target, triangles)
     owner = np.full(shape, -1, dtype=np.int32)
     fixed_point = np.round(target * 16).astype(np.int32)
-    for k in np.flatnonzero(valid):
+    # Smallest first: pixels on shared edges go to the better-conditioned larger
+    # triangle, so collapsed lips and eyelids never sample through a sliver.
+    for k in np.argsort(areas, kind="stable"):
+        if areas[k] < MIN_TRIANGLE_AREA:
+            continue
         cv2.fillConvexPoly(owner, fixed_point[triangles[k]], int(k), lineType=cv2.LINE_8, shift=4)
     ys, xs = np.mgrid[0:height, 0:width].astype(np.float32)
     identity = np.array([[1, 0], [0, 1], [0, 0]], dtype=np.float64)
@@ -887,7 +895,8 @@ def paint_mouth(frame: np.ndarray, landmarks: np.ndarray, face_width: float) -> 
     teeth = np.array([228.0, 220.0, 206.0]) * shade * (1.0 - 0.1 * separation)[..., None]
     interior = blend(interior, teeth, teeth_alpha(xs, ys, landmarks, gap, face_width))
 
-    cavity = polygon_alpha(shape, catmull_rom_closed(inner), low)
+    parted = np.clip(gap, 0.0, 1.0)
+    cavity = parted * polygon_alpha(shape, catmull_rom_closed(inner), low)
     region = blend(region, interior, cavity)
     seam_x = np.arange(landmarks[60, 0], landmarks[64, 0] + 0.5, 1.0)
     seam = np.stack([seam_x, lip_curve(landmarks, UPPER_INNER_LIP, seam_x)], axis=1)
@@ -898,24 +907,50 @@ def paint_mouth(frame: np.ndarray, landmarks: np.ndarray, face_width: float) -> 
     frame[low[1]:high[1], low[0]:high[0]] = np.clip(region + 0.5, 0, 255).astype(np.uint8)
 
 
+def lash_line(eye: np.ndarray) -> np.ndarray:
+    """Smooth arc (M, 2) from corner to corner through the middle of the closing lids.
+
+    Parameters
+    ----------
+    eye : ndarray, (6, 2)
+        The eye's landmarks in iBUG order (corner, two upper, corner, two lower).
+    """
+    through = np.stack([eye[0], 0.5 * (eye[1] + eye[5]), 0.5 * (eye[2] + eye[4]), eye[3]])
+    coefficients = np.polyfit(through[:, 0], through[:, 1], 2)
+    xs = np.linspace(eye[0, 0], eye[3, 0], 12)
+    return np.stack([xs, np.polyval(coefficients, xs)], axis=1)
+
+
 def paint_closed_eyes(frame: np.ndarray, landmarks: np.ndarray, closure: float,
                       eyelid_rgb: np.ndarray) -> None:
-    """Cover each eye with eyelid skin and a lash line, in proportion to ``closure`` (in place)."""
+    """Cover each eye with feathered eyelid skin and a soft lash line, in proportion to ``closure``.
+
+    Parameters
+    ----------
+    frame : ndarray, (H, W, 3) uint8 RGB
+        Modified in place.
+    landmarks : ndarray, (68, 2)
+    closure : float
+        0 = open (nothing painted), 1 = closed.
+    eyelid_rgb : ndarray, (2, 3)
+        Skin colour for the right and left eyelid.
+    """
     strength = float(np.clip((closure - 0.2) / 0.6, 0.0, 1.0))
     if strength <= 0.0:
         return
     for eye, colour in ((RIGHT_EYE, eyelid_rgb[0]), (LEFT_EYE, eyelid_rgb[1])):
         points = landmarks[eye]
-        low = np.floor(points.min(axis=0) - 3).astype(int).clip(0)
-        high = np.ceil(points.max(axis=0) + 4).astype(int)
+        low = np.floor(points.min(axis=0) - 4).astype(int).clip(0)
+        high = np.ceil(points.max(axis=0) + 5).astype(int)
         shape = (high[1] - low[1], high[0] - low[0])
-        region = frame[low[1]:high[1], low[0]:high[0]].astype(np.float32)
+        region = frame[low[1]:high[1], low[0]:high[0]].astype(np.float64)
         lid = polygon_alpha(shape, catmull_rom_closed(points), low)
-        region = blend(region, colour, strength * lid)
+        lid = cv2.GaussianBlur(cv2.dilate(lid, np.ones((5, 5), np.uint8)), (0, 0), 1.0)
+        region = blend(region, colour, strength * np.clip(lid, 0.0, 1.0))
         lash = np.zeros(shape, dtype=np.uint8)
-        lower_lid = np.round((points[[0, 5, 4, 3]] - low) * 16).astype(np.int32)
-        cv2.polylines(lash, [lower_lid], False, 255, thickness=1, lineType=cv2.LINE_AA, shift=4)
-        region = blend(region, np.array([70.0, 45.0, 38.0]), 0.8 * strength * lash / 255.0)
+        cv2.polylines(lash, [np.round((lash_line(points) - low) * 16).astype(np.int32)], False, 255,
+                      thickness=1, lineType=cv2.LINE_AA, shift=4)
+        region = blend(region, np.array([85.0, 60.0, 50.0]), 0.6 * strength * lash / 255.0)
         frame[low[1]:high[1], low[0]:high[0]] = np.clip(region + 0.5, 0, 255).astype(np.uint8)
 
 
@@ -1087,7 +1122,7 @@ def vocal_tract(excitation: np.ndarray, formants: np.ndarray, sample_rate: int) 
 def band_noise(rng: np.random.Generator, band: tuple, n_samples: int, sample_rate: int) -> np.ndarray:
     """Unit-RMS white noise band-passed to ``band`` (Hz)."""
     high = min(band[1], 0.95 * sample_rate / 2)
-    sos = butter(2, [band[0], high], btype="bandpass", fs=sample_rate, output="sos")
+    sos = butter(4, [band[0], high], btype="bandpass", fs=sample_rate, output="sos")
     noise = sosfilt(sos, rng.standard_normal(n_samples))
     return noise / (noise.std() + 1e-12)
 
@@ -1135,7 +1170,7 @@ def synthesize_speech(phones: np.ndarray, stressed: np.ndarray, rng: np.random.G
     for label, phone in PHONES.items():
         if phone.noise_band is not None and tracks["noise:" + label].any():
             envelope = at_samples(tracks["noise:" + label], 0.002 if phone.kind == "stop" else 0.008)
-            speech += 0.25 * envelope * band_noise(rng, phone.noise_band, n_samples, sample_rate)
+            speech += envelope * band_noise(rng, phone.noise_band, n_samples, sample_rate)
     speech += 3e-4 * rng.standard_normal(n_samples)
     return (0.7 * speech / np.abs(speech).max()).astype(np.float32)
 
