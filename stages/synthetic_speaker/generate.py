@@ -42,7 +42,10 @@ from scipy.signal import butter, lfilter, sosfilt
 from scipy.spatial import Delaunay
 from tqdm import tqdm
 
-log = logging.getLogger(__name__)
+from pipeline.errors import LipsynthError, ParameterError
+from pipeline.params import require, section
+
+log = logging.getLogger("lipsynth.synthetic_speaker")
 
 # ----------------------------------------------------------------------------
 # Constants
@@ -73,9 +76,12 @@ FILTER_BLOCK = 80
 
 VIDEO_OPTIONS = {"crf": "18", "preset": "medium", "threads": "1"}
 AUDIO_BIT_RATE = 64000
+AAC_SAMPLE_RATES = (8000, 11025, 12000, 16000, 22050, 24000, 32000, 44100, 48000)
+
+HOG_MIN_FACE_PX = 80
+"""dlib's frontal HOG detector (upsample 0) misses faces narrower than about this."""
 
 # Landmark index groups of the dlib/iBUG 68-point convention.
-JAW = np.arange(0, 17)
 NOSE = np.arange(27, 36)
 RIGHT_EYE = np.arange(36, 42)  # subject's right eye = image left
 LEFT_EYE = np.arange(42, 48)
@@ -85,9 +91,11 @@ UPPER_INNER_LIP = np.array([60, 61, 62, 63, 64])
 LOWER_INNER_LIP = np.array([64, 65, 66, 67, 60])
 # (upper lid, lower lid) landmark pairs that meet when the eye closes
 EYELID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))
-# (upper inner lip, lower inner lip, lower outer lip) columns of the mouth
-LIP_COLUMNS = ((61, 67, 59), (62, 66, 57), (63, 65, 55))
-LIP_COLUMN_MIDDLE_OUTER = ((62, 58), (62, 56))
+LOWER_OUTER_LIP = np.arange(55, 60)
+# (upper, lower) inner-lip landmark pairs that meet when the lips close
+INNER_LIP_PAIRS = ((61, 67), (62, 66), (63, 65))
+# chin landmark -> fraction of the lower-lip movement it follows when the mouth closes
+CHIN_FOLLOW = {5: 0.2, 6: 0.5, 7: 0.8, 8: 1.0, 9: 0.8, 10: 0.5, 11: 0.2}
 
 
 @dataclass(frozen=True)
@@ -295,17 +303,14 @@ def closed_mouth(landmarks: np.ndarray) -> np.ndarray:
     ndarray, (68, 2)
     """
     rest = landmarks.copy()
-    for upper, lower, outer in LIP_COLUMNS:
+    for upper, lower in INNER_LIP_PAIRS:
         gap = landmarks[lower, 1] - landmarks[upper, 1]
         rest[upper, 1] += 0.35 * gap
         rest[lower, 1] -= 0.65 * gap
-        rest[outer, 1] -= 0.65 * gap
-    centre_gap = landmarks[66, 1] - landmarks[62, 1]
-    for index in (56, 57, 58):
-        rest[index, 1] = landmarks[index, 1] - 0.65 * centre_gap
-    jaw_weights = {5: 0.2, 6: 0.5, 7: 0.8, 8: 1.0, 9: 0.8, 10: 0.5, 11: 0.2}
-    for index, weight in jaw_weights.items():
-        rest[index, 1] -= 0.65 * centre_gap * weight
+    lower_lip_lift = 0.65 * (landmarks[66, 1] - landmarks[62, 1])
+    rest[LOWER_OUTER_LIP, 1] -= lower_lip_lift
+    for index, follow in CHIN_FOLLOW.items():
+        rest[index, 1] -= follow * lower_lip_lift
     return rest
 
 
@@ -351,7 +356,7 @@ def neck_points(landmarks: np.ndarray, face_width: float) -> np.ndarray:
     """
     chin = landmarks[8]
     offsets = np.array([[-0.55, 0.05], [-0.3, 0.3], [0.0, 0.32], [0.3, 0.3], [0.55, 0.05]])
-    return chin + offsets * face_width + np.array([0.0, 0.0])
+    return chin + offsets * face_width
 
 
 def border_points(width: int, height: int, per_side: int = 7) -> np.ndarray:
@@ -514,6 +519,7 @@ def sample_phone_sequence(rng: np.random.Generator, seconds: float) -> tuple[np.
     stressed : ndarray, (P,) bool
         Stressed vowels (carry a pitch accent).
     """
+    pause_range = PHONES["sil"].duration
     units = [("sil", rng.uniform(0.3, 0.6), False)]
     elapsed = units[0][1]
     while True:
@@ -522,7 +528,7 @@ def sample_phone_sequence(rng: np.random.Generator, seconds: float) -> tuple[np.
             break
         units += phrase
         elapsed += sum(d for _, d, _ in phrase)
-        pause = rng.uniform(0.3, 1.0)
+        pause = rng.uniform(*pause_range)
         units.append(("sil", pause, False))
         elapsed += pause
         if elapsed >= seconds - 0.6:
@@ -860,12 +866,41 @@ def teeth_alpha(xs: np.ndarray, ys: np.ndarray, landmarks: np.ndarray, gap: floa
     return np.maximum(upper, lower) * parted
 
 
-def paint_mouth(frame: np.ndarray, landmarks: np.ndarray, face_width: float) -> None:
-    """Paint the mouth interior inside the inner-lip polygon (in place).
+def lip_gap(landmarks: np.ndarray) -> float:
+    """Mean vertical distance (px) between the inner lips at landmarks 61-63 / 67-65."""
+    return float(np.mean(landmarks[[67, 66, 65], 1] - landmarks[[61, 62, 63], 1]))
 
-    Dark reddish cavity (darker towards the corners) with a tongue, upper teeth
-    hanging from the upper lip and lower teeth above the lower lip (both grow
-    with the opening), plus a dark seam where the lips meet.
+
+def mouth_interior(xs: np.ndarray, ys: np.ndarray, landmarks: np.ndarray, face_width: float) -> np.ndarray:
+    """Colour (h, w, 3) of the open mouth at pixel centres ``xs, ys`` (h, w).
+
+    Dark reddish cavity, darker towards the corners, a tongue low in the mouth
+    and light low-saturation teeth (see :func:`teeth_alpha`).
+    """
+    gap = lip_gap(landmarks)
+    center = landmarks[INNER_LIP].mean(axis=0)
+    half_width = max(0.5 * (landmarks[64, 0] - landmarks[60, 0]), 1.0)
+    lateral = np.clip(np.abs(xs - center[0]) / half_width, 0.0, 1.0)
+    shade = (1.0 - 0.5 * lateral**2)[..., None]
+    interior = np.array([72.0, 22.0, 28.0]) * (0.5 + 0.5 * shade)
+    tongue = np.exp(-((xs - center[0]) / (0.5 * half_width)) ** 2
+                    - ((ys - landmarks[66, 1] + 0.2 * gap) / max(0.25 * gap, 0.5)) ** 2)
+    interior = blend(interior, np.array([125.0, 55.0, 60.0]), 0.7 * tongue * min(gap / 12.0, 1.0))
+    separation = np.cos(np.pi * (xs - center[0]) / (0.045 * face_width)) ** 16
+    teeth = np.array([228.0, 220.0, 206.0]) * shade * (1.0 - 0.1 * separation)[..., None]
+    return blend(interior, teeth, teeth_alpha(xs, ys, landmarks, gap, face_width))
+
+
+def polyline_alpha(shape: tuple[int, int], points: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """Anti-aliased 1-px polyline coverage (H, W) float in [0, 1] of frame-px ``points``."""
+    mask = np.zeros(shape, dtype=np.uint8)
+    cv2.polylines(mask, [np.round((points - origin) * 16).astype(np.int32)], False, 255,
+                  thickness=1, lineType=cv2.LINE_AA, shift=4)
+    return mask / 255.0
+
+
+def paint_mouth(frame: np.ndarray, landmarks: np.ndarray, face_width: float) -> None:
+    """Paint the mouth interior inside the inner-lip polygon, and the lip seam (in place).
 
     Parameters
     ----------
@@ -880,30 +915,11 @@ def paint_mouth(frame: np.ndarray, landmarks: np.ndarray, face_width: float) -> 
     shape = (high[1] - low[1], high[0] - low[0])
     ys, xs = np.mgrid[low[1]:high[1], low[0]:high[0]].astype(np.float64)
     region = frame[low[1]:high[1], low[0]:high[0]].astype(np.float64)
-    gap = float(np.mean(landmarks[[67, 66, 65], 1] - landmarks[[61, 62, 63], 1]))
-    center = inner.mean(axis=0)
-    half_width = max(0.5 * (landmarks[64, 0] - landmarks[60, 0]), 1.0)
-    lateral = np.clip(np.abs(xs - center[0]) / half_width, 0.0, 1.0)
-    shade = (1.0 - 0.5 * lateral**2)[..., None]
-
-    interior = np.array([72.0, 22.0, 28.0]) * (0.5 + 0.5 * shade)
-    tongue_y = landmarks[66, 1] - 0.2 * gap
-    tongue = np.exp(-((xs - center[0]) / (0.5 * half_width))**2 - ((ys - tongue_y) / max(0.25 * gap, 0.5))**2)
-    interior = blend(interior, np.array([125.0, 55.0, 60.0]), 0.7 * tongue * min(gap / 12.0, 1.0))
-    tooth_width = 0.045 * face_width
-    separation = np.cos(np.pi * (xs - center[0]) / tooth_width) ** 16
-    teeth = np.array([228.0, 220.0, 206.0]) * shade * (1.0 - 0.1 * separation)[..., None]
-    interior = blend(interior, teeth, teeth_alpha(xs, ys, landmarks, gap, face_width))
-
-    parted = np.clip(gap, 0.0, 1.0)
-    cavity = parted * polygon_alpha(shape, catmull_rom_closed(inner), low)
-    region = blend(region, interior, cavity)
+    cavity = np.clip(lip_gap(landmarks), 0.0, 1.0) * polygon_alpha(shape, catmull_rom_closed(inner), low)
+    region = blend(region, mouth_interior(xs, ys, landmarks, face_width), cavity)
     seam_x = np.arange(landmarks[60, 0], landmarks[64, 0] + 0.5, 1.0)
     seam = np.stack([seam_x, lip_curve(landmarks, UPPER_INNER_LIP, seam_x)], axis=1)
-    seam_mask = np.zeros(shape, dtype=np.uint8)
-    cv2.polylines(seam_mask, [np.round((seam - low) * 16).astype(np.int32)], False, 255,
-                  thickness=1, lineType=cv2.LINE_AA, shift=4)
-    region = blend(region, np.array([110.0, 50.0, 55.0]), 0.35 * seam_mask / 255.0)
+    region = blend(region, np.array([110.0, 50.0, 55.0]), 0.35 * polyline_alpha(shape, seam, low))
     frame[low[1]:high[1], low[0]:high[0]] = np.clip(region + 0.5, 0, 255).astype(np.uint8)
 
 
@@ -947,10 +963,8 @@ def paint_closed_eyes(frame: np.ndarray, landmarks: np.ndarray, closure: float,
         lid = polygon_alpha(shape, catmull_rom_closed(points), low)
         lid = cv2.GaussianBlur(cv2.dilate(lid, np.ones((5, 5), np.uint8)), (0, 0), 1.0)
         region = blend(region, colour, strength * np.clip(lid, 0.0, 1.0))
-        lash = np.zeros(shape, dtype=np.uint8)
-        cv2.polylines(lash, [np.round((lash_line(points) - low) * 16).astype(np.int32)], False, 255,
-                      thickness=1, lineType=cv2.LINE_AA, shift=4)
-        region = blend(region, np.array([85.0, 60.0, 50.0]), 0.6 * strength * lash / 255.0)
+        lash = polyline_alpha(shape, lash_line(points), low)
+        region = blend(region, np.array([85.0, 60.0, 50.0]), 0.6 * strength * lash)
         frame[low[1]:high[1], low[0]:high[0]] = np.clip(region + 0.5, 0, 255).astype(np.uint8)
 
 
@@ -984,6 +998,20 @@ def render_frame(template: FaceTemplate, landmarks: np.ndarray, closure: float,
 # Audio: source-filter formant synthesis
 # ----------------------------------------------------------------------------
 
+def stop_phases(phones: np.ndarray, index: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closure and 12-ms burst masks of a stop, for control samples inside phone ``index``.
+
+    Returns
+    -------
+    closure, burst : ndarray, (n,) bool
+        Closure: the first ``STOP_CLOSURE_FRACTION`` of the unit; burst: the
+        12 ms after it. The rest of the unit is the release (aspiration or voicing).
+    """
+    start, end = phones["start"][index], phones["end"][index]
+    release = start + STOP_CLOSURE_FRACTION * (end - start)
+    return times < release, (times >= release) & (times < release + 0.012)
+
+
 def control_tracks(phones: np.ndarray, n_control: int) -> dict[str, np.ndarray]:
     """Step-wise synthesis controls at ``CONTROL_RATE``.
 
@@ -997,7 +1025,6 @@ def control_tracks(phones: np.ndarray, n_control: int) -> dict[str, np.ndarray]:
     times = np.arange(n_control) / CONTROL_RATE
     index = phone_index_at(phones, times)
     labels = phones["label"][index]
-    position = (times - phones["start"][index]) / (phones["end"] - phones["start"])[index]
     tracks = {
         "formants": np.array([PHONES[label].formants for label in labels], dtype=np.float64),
         "voicing": np.array([PHONES[label].voicing for label in labels]),
@@ -1006,18 +1033,16 @@ def control_tracks(phones: np.ndarray, n_control: int) -> dict[str, np.ndarray]:
     for label, phone in PHONES.items():
         if phone.noise_band is not None:
             tracks["noise:" + label] = np.where(labels == label, phone.noise_amp, 0.0)
+    closure, burst = stop_phases(phones, index, times)
     for label in ("p", "b", "t", "k"):
-        is_stop = labels == label
-        closing = is_stop & (position < STOP_CLOSURE_FRACTION)
-        burst_end = STOP_CLOSURE_FRACTION + 0.012 / np.maximum(
-            (phones["end"] - phones["start"])[index], 1e-3)
-        burst = is_stop & ~closing & (position < burst_end)
-        tracks["noise:" + label] = np.where(burst, PHONES[label].noise_amp, 0.0)
+        stop = labels == label
+        release = stop & ~closure & ~burst
+        tracks["noise:" + label] = np.where(stop & burst, PHONES[label].noise_amp, 0.0)
         if label == "b":
-            tracks["voicing"][is_stop & ~closing & ~burst] = 0.6
+            tracks["voicing"][release] = 0.6
         else:
-            tracks["voicing"][is_stop] = 0.0
-            tracks["aspiration"][is_stop & ~closing & ~burst] = 0.12
+            tracks["voicing"][stop] = 0.0
+            tracks["aspiration"][release] = 0.12
     return tracks
 
 
@@ -1127,6 +1152,38 @@ def band_noise(rng: np.random.Generator, band: tuple, n_samples: int, sample_rat
     return noise / (noise.std() + 1e-12)
 
 
+def to_audio_rate(track: np.ndarray, sigma_s: float, n_samples: int, sample_rate: int) -> np.ndarray:
+    """Smooth a ``CONTROL_RATE`` track (Gaussian, ``sigma_s`` seconds) and resample it to (n_samples,)."""
+    smooth = gaussian_filter1d(track, sigma_s * CONTROL_RATE, axis=0, mode="nearest")
+    control_times = np.arange(len(track)) / CONTROL_RATE
+    return np.interp(np.arange(n_samples) / sample_rate, control_times, smooth)
+
+
+def block_formants(formants: np.ndarray, n_samples: int, sample_rate: int) -> np.ndarray:
+    """F1-F3 (Hz) per ``FILTER_BLOCK``, from step targets at ``CONTROL_RATE`` smoothed over 18 ms.
+
+    Returns
+    -------
+    ndarray, (ceil(n_samples / FILTER_BLOCK), 3)
+    """
+    smooth = gaussian_filter1d(formants, 0.018 * CONTROL_RATE, axis=0, mode="nearest")
+    control_times = np.arange(len(formants)) / CONTROL_RATE
+    block_times = (np.arange(int(np.ceil(n_samples / FILTER_BLOCK))) + 0.5) * FILTER_BLOCK / sample_rate
+    return np.stack([np.interp(block_times, control_times, smooth[:, j]) for j in range(3)], axis=1)
+
+
+def frication(tracks: dict, rng: np.random.Generator, n_samples: int, sample_rate: int) -> np.ndarray:
+    """Sum of band-passed noises gated by the fricative and stop-burst amplitude tracks."""
+    noise = np.zeros(n_samples)
+    for label, phone in PHONES.items():
+        if phone.noise_band is None or not tracks["noise:" + label].any():
+            continue
+        sigma_s = 0.002 if phone.kind == "stop" else 0.008
+        envelope = to_audio_rate(tracks["noise:" + label], sigma_s, n_samples, sample_rate)
+        noise += envelope * band_noise(rng, phone.noise_band, n_samples, sample_rate)
+    return noise
+
+
 def synthesize_speech(phones: np.ndarray, stressed: np.ndarray, rng: np.random.Generator,
                       sample_rate: int, n_samples: int) -> np.ndarray:
     """Speech-like audio for a phone sequence.
@@ -1150,27 +1207,14 @@ def synthesize_speech(phones: np.ndarray, stressed: np.ndarray, rng: np.random.G
         Mono waveform in [-1, 1].
     """
     n_control = int(np.ceil(n_samples / sample_rate * CONTROL_RATE)) + 1
-    control_times = np.arange(n_control) / CONTROL_RATE
-    sample_times = np.arange(n_samples) / sample_rate
     tracks = control_tracks(phones, n_control)
-
-    def at_samples(track: np.ndarray, sigma_s: float) -> np.ndarray:
-        smooth = gaussian_filter1d(track, sigma_s * CONTROL_RATE, mode="nearest")
-        return np.interp(sample_times, control_times, smooth)
-
-    f0 = at_samples(pitch_contour(phones, stressed, rng, n_control), 0.002)
-    excitation = at_samples(tracks["voicing"], 0.006) * glottal_source(f0, sample_rate)
-    excitation += 0.4 * at_samples(tracks["aspiration"], 0.003) * rng.standard_normal(n_samples)
-    n_blocks = int(np.ceil(n_samples / FILTER_BLOCK))
-    block_times = (np.arange(n_blocks) + 0.5) * FILTER_BLOCK / sample_rate
-    smooth_formants = gaussian_filter1d(tracks["formants"], 0.018 * CONTROL_RATE, axis=0, mode="nearest")
-    formants = np.stack([np.interp(block_times, control_times, smooth_formants[:, j]) for j in range(3)], axis=1)
-    speech = vocal_tract(excitation, formants, sample_rate)
+    f0 = to_audio_rate(pitch_contour(phones, stressed, rng, n_control), 0.002, n_samples, sample_rate)
+    voicing = to_audio_rate(tracks["voicing"], 0.006, n_samples, sample_rate)
+    aspiration = to_audio_rate(tracks["aspiration"], 0.003, n_samples, sample_rate)
+    excitation = voicing * glottal_source(f0, sample_rate) + 0.4 * aspiration * rng.standard_normal(n_samples)
+    speech = vocal_tract(excitation, block_formants(tracks["formants"], n_samples, sample_rate), sample_rate)
     speech /= np.abs(speech).max() + 1e-12
-    for label, phone in PHONES.items():
-        if phone.noise_band is not None and tracks["noise:" + label].any():
-            envelope = at_samples(tracks["noise:" + label], 0.002 if phone.kind == "stop" else 0.008)
-            speech += envelope * band_noise(rng, phone.noise_band, n_samples, sample_rate)
+    speech += frication(tracks, rng, n_samples, sample_rate)
     speech += 3e-4 * rng.standard_normal(n_samples)
     return (0.7 * speech / np.abs(speech).max()).astype(np.float32)
 
@@ -1319,9 +1363,6 @@ def generate_video(template: FaceTemplate, settings: dict, video_index: int, dir
 
 def validated_settings(params: dict) -> dict:
     """Check the ``synthetic_speaker`` params section and return typed settings."""
-    from pipeline.errors import ParameterError
-    from pipeline.params import require
-
     where = "synthetic_speaker"
     settings = {
         "seed": require(params, "seed", int, where),
@@ -1333,22 +1374,17 @@ def validated_settings(params: dict) -> dict:
         "sample_rate": require(params, "sample_rate", int, where),
         "out_dir": str(require(params, "out_dir", str, where)),
     }
-    checks = {
-        "n_videos": settings["n_videos"] >= 1,
-        "seconds_per_video": settings["seconds_per_video"] >= 1.0,
-        "fps": settings["fps"] > 0,
-        "width": settings["width"] >= 160 and settings["width"] % 2 == 0,
-        "height": settings["height"] >= 128 and settings["height"] % 2 == 0,
-        "sample_rate": settings["sample_rate"] in (8000, 11025, 16000, 22050, 24000, 32000, 44100, 48000),
-    }
-    rules = {
-        "n_videos": ">= 1", "seconds_per_video": ">= 1", "fps": "> 0",
-        "width": "even and >= 160", "height": "even and >= 128",
-        "sample_rate": "an AAC rate such as 16000",
-    }
-    for key, ok in checks.items():
+    checks = (
+        ("n_videos", settings["n_videos"] >= 1, ">= 1"),
+        ("seconds_per_video", settings["seconds_per_video"] >= 1.0, ">= 1"),
+        ("fps", settings["fps"] > 0, "> 0"),
+        ("width", settings["width"] >= 160 and settings["width"] % 2 == 0, "even and >= 160"),
+        ("height", settings["height"] >= 128 and settings["height"] % 2 == 0, "even and >= 128"),
+        ("sample_rate", settings["sample_rate"] in AAC_SAMPLE_RATES, f"one of {AAC_SAMPLE_RATES}"),
+    )
+    for key, ok, rule in checks:
         if not ok:
-            raise ParameterError(f"{where}.{key}={settings[key]!r}: must be {rules[key]}")
+            raise ParameterError(f"{where}.{key}={settings[key]!r}: must be {rule}")
     return settings
 
 
@@ -1382,6 +1418,9 @@ def generate_corpus(settings: dict) -> Path:
         template = build_template(settings["width"], settings["height"])
         log.info("template face %.0f px wide, %d mesh points, %d triangles",
                  template.face_width, len(template.mesh_points), len(template.triangles))
+        if template.face_width < HOG_MIN_FACE_PX:
+            log.warning("face is only %.0f px wide: dlib's HOG detector will miss it "
+                        "(use frames of at least 240 x 192)", template.face_width)
         for video_index in tqdm(range(settings["n_videos"]), desc="synthetic speaker", unit="video"):
             generate_video(template, settings, video_index, staging)
         replace_directory(staging, out_dir)
@@ -1403,6 +1442,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             "Settings come from the 'synthetic_speaker' section of params.yaml (or the file "
             "named by $LIPSYNTH_PARAMS): seed, n_videos, seconds_per_video, fps, width, "
             "height, sample_rate, out_dir. The output directory is replaced atomically."),
+        epilog=(
+            "truth.npz keys: landmarks (T,68,2) float32 px, dlib/iBUG order; pose (T,6) "
+            "yaw/pitch/roll deg, tx/ty px, scale; blink (T,) bool; mouth (T,3) open 0..1, "
+            "width -1..1, round 0..1; phones (P,) label/start/end s ('sil' = silence); "
+            "voiced (T,) bool speech activity; fps; sample_rate; mouth_lead_s. The mouth "
+            f"anticipates the sound by {MOUTH_LEAD_S * 1000:.0f} ms."),
     )
     parser.add_argument("--out", metavar="DIR", help="output directory (overrides out_dir)")
     return parser.parse_args(argv)
@@ -1412,9 +1457,6 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point: read params, generate the corpus, report the time taken."""
     args = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    from pipeline.errors import LipsynthError
-    from pipeline.params import section
-
     try:
         settings = validated_settings(section("synthetic_speaker"))
         if args.out:
