@@ -13,6 +13,10 @@ COMMANDS = {
     "ingest": ("stages.ingest.ingest", "decode videos: face crops, 16 kHz audio, MFCC features → store/ingest.zarr"),
     "landmarks": ("stages.landmarks.landmarks", "dlib 68-point landmarks for every frame → store/landmarks.zarr"),
     "frontalize": ("stages.frontalize.frontalize", "3D model, pose, frontal textures → store/frontalize.zarr"),
+    "pca": ("stages.pca.pca", "18 frontal lip points → 20 PCA coefficients per frame and at 100 Hz → store/pca.zarr"),
+    "train": ("stages.train.train", "train the audio → mouth-shape model (train.model) → models/<model>"),
+    "delay-sweep": ("stages.train.sweep", "validation loss of the LSTM for several target delays → plots/"),
+    "predict-mouth": ("stages.train.predict", "per-frame mouth shapes for an audio file from a model folder"),
 }
 
 

@@ -148,25 +148,38 @@ def cut_crop(yuv: tuple[np.ndarray, np.ndarray, np.ndarray], box: tuple[float, f
 
 # ---------------------------------------------------------------- per-video work (on a worker)
 def find_face_boxes(path: str, max_samples: int, min_face_px: float, upsample: int) -> np.ndarray:
-    """Detect the face on up to ``max_samples`` key frames (and the first frame). (K, 4) boxes."""
+    """Detect the face on up to ``max_samples`` frames → (K, 4) boxes.
+
+    Key frames are tried first (decoding only them is cheap); if none of them shows a face,
+    evenly spaced frames of a full decode are tried before giving up.
+    """
     keyframes = [img for _, img in media.iter_frames(path, fmt="gray", keyframes_only=True)]
     if not keyframes:
         raise BadInputError(path, "no decodable video frames (zero-length or corrupt video)")
-    pick = np.unique(np.linspace(0, len(keyframes) - 1, min(max_samples, len(keyframes))).round().astype(int))
+    boxes, small, tried = _detect_on(keyframes, max_samples, min_face_px, upsample)
+    if not boxes:
+        frames = [img for _, img in media.iter_frames(path, fmt="gray")]
+        boxes, small2, tried2 = _detect_on(frames, max_samples, min_face_px, upsample)
+        small, tried = small + small2, tried + tried2
+    if not boxes:
+        if small:
+            raise BadInputError(path, f"face too small (< {min_face_px:.0f} px wide) in all {tried} sampled frames")
+        raise BadInputError(path, f"no face found in {tried} sampled frames")
+    return np.array(boxes)
+
+
+def _detect_on(frames: list, max_samples: int, min_face_px: float, upsample: int):
+    pick = np.unique(np.linspace(0, len(frames) - 1, min(max_samples, len(frames))).round().astype(int))
     boxes, small = [], 0
     for i in pick:
-        found = face.detect_face(keyframes[i], upsample)
+        found = face.detect_face(frames[i], upsample)
         if found is not None:
             box = found[0]
             if box[2] - box[0] < min_face_px:
                 small += 1
                 continue
             boxes.append(box)
-    if not boxes:
-        if small:
-            raise BadInputError(path, f"face too small (< {min_face_px:.0f} px wide) in all {len(pick)} sampled frames")
-        raise BadInputError(path, f"no face found in {len(pick)} sampled key frames")
-    return np.array(boxes)
+    return boxes, small, len(pick)
 
 
 def ingest_video(job: dict) -> dict:

@@ -1,0 +1,150 @@
+"""The time-delayed LSTM of paper 000 §3.1.1 and §4.2: MFCC (28-D, 100 Hz) → mouth PCA (20-D).
+
+One unidirectional LSTM layer (60 cells) and a linear read-out; the output at step t is the
+mouth shape of step t − d (target delay d = 20 steps = 200 ms), so the network hears d steps
+of the future before it commits to a shape (Eq. 1–6). Inputs are normalised by the training
+mean/variance; outputs are the unnormalised PCA coefficients; L2 loss; Adam; truncated
+back-propagation through time over windows of ``bptt`` steps with batches of ``batch_size``
+parallel streams whose state carries across windows.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import numpy as np
+import torch
+from torch import nn
+
+log = logging.getLogger("lipsynth.train")
+
+
+def pick_device(name: str = "auto") -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+class DelayedLSTM(nn.Module):
+    """LSTM(n_in → hidden) + Linear(hidden → n_out); ``delay`` is carried as metadata."""
+
+    def __init__(self, n_in: int = 28, hidden: int = 60, n_out: int = 20, layers: int = 1):
+        super().__init__()
+        self.lstm = nn.LSTM(n_in, hidden, num_layers=layers, batch_first=True)
+        self.out = nn.Linear(hidden, n_out)
+
+    def forward(self, x: torch.Tensor, state=None):
+        """x (B, T, n_in) → (B, T, n_out), new state."""
+        h, state = self.lstm(x, state)
+        return self.out(h), state
+
+
+def delayed_pairs(x: np.ndarray, y: np.ndarray, ok: np.ndarray, delay: int):
+    """Align one sequence for a target delay: input step t is trained against target t − d.
+
+    ``d`` zero frames (= the training mean after normalisation) are appended to the input so the
+    last ``d`` shapes are produced too. Returns x' (m+d, n_in), y' (m+d, n_out), mask (m+d,).
+    """
+    m = len(x)
+    xd = np.concatenate([x, np.zeros((delay, x.shape[1]), x.dtype)])
+    yd = np.concatenate([np.zeros((delay, y.shape[1]), y.dtype), y])
+    md = np.concatenate([np.zeros(delay, bool), ok])
+    assert len(xd) == len(yd) == m + delay
+    return xd, yd, md
+
+
+def make_streams(seqs: list, batch_size: int, bptt: int, rng: np.random.Generator):
+    """Concatenate sequences in random order and fold them into ≤ ``batch_size`` parallel streams.
+
+    Returns X (B, L, n_in), Y (B, L, n_out), M (B, L) with L a multiple of ``bptt``.
+    """
+    order = rng.permutation(len(seqs))
+    X = np.concatenate([seqs[i][0] for i in order])
+    Y = np.concatenate([seqs[i][1] for i in order])
+    M = np.concatenate([seqs[i][2] for i in order])
+    B = max(1, min(batch_size, len(X) // bptt))
+    L = (len(X) // (B * bptt)) * bptt
+    if L == 0:
+        L, B = len(X), 1
+    n = B * L
+    return X[:n].reshape(B, L, -1), Y[:n].reshape(B, L, -1), M[:n].reshape(B, L)
+
+
+def masked_l2(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean over valid steps of the squared error summed over coefficients (canonical px²)."""
+    se = ((pred - target) ** 2).sum(-1)
+    return (se * mask).sum() / mask.sum().clamp(min=1)
+
+
+@torch.no_grad()
+def predict_sequence(model: DelayedLSTM, x: np.ndarray, delay: int, device, chunk: int | None = None) -> np.ndarray:
+    """Mouth coefficients (m, n_out) for normalised features x (m, n_in), state carried over chunks.
+
+    Runs the m + d delayed steps (zero-padded input) and drops the first d outputs, so output i
+    is the shape at step i. ``chunk`` (steps) streams the input through the LSTM piecewise; the
+    result equals one pass.
+    """
+    model.eval()
+    xd = np.concatenate([x, np.zeros((delay, x.shape[1]), np.float32)]).astype(np.float32)
+    chunk = chunk or len(xd)
+    outs, state = [], None
+    for a in range(0, len(xd), chunk):
+        xb = torch.from_numpy(xd[None, a:a + chunk]).to(device)
+        yb, state = model(xb, state)
+        outs.append(yb[0].cpu().numpy())
+    return np.concatenate(outs)[delay:delay + len(x)]
+
+
+def train(train_seqs: list, val_seqs: list, p: dict, delay: int, device, seed: int = 0,
+          desc: str = "lstm") -> tuple[DelayedLSTM, list[dict]]:
+    """Train one model.
+
+    Parameters
+    ----------
+    train_seqs, val_seqs : list of (x (m, 28) normalised float32, y (m, 20), ok (m,) bool)
+    p : train params (hidden, layers, batch_size, bptt, lr, epochs).
+
+    Returns
+    -------
+    model, history (one dict per epoch: epoch, train_loss, val_loss, seconds).
+    """
+    from tqdm import tqdm
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    n_in, n_out = train_seqs[0][0].shape[1], train_seqs[0][1].shape[1]
+    model = DelayedLSTM(n_in, p["hidden"], n_out, p.get("layers", 1)).to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=p["lr"])
+    shifted = [delayed_pairs(x, y, ok, delay) for x, y, ok in train_seqs]
+    history = []
+    bar = tqdm(range(p["epochs"]), desc=f"train {desc} (d={delay})", unit="epoch", dynamic_ncols=True)
+    for epoch in bar:
+        t0 = time.perf_counter()
+        model.train()
+        X, Y, M = (torch.from_numpy(a).to(device) for a in make_streams(shifted, p["batch_size"], p["bptt"], rng))
+        state, total, count = None, 0.0, 0.0
+        for a in range(0, X.shape[1], p["bptt"]):
+            pred, state = model(X[:, a:a + p["bptt"]], state)
+            state = tuple(s.detach() for s in state)
+            loss = masked_l2(pred, Y[:, a:a + p["bptt"]], M[:, a:a + p["bptt"]].float())
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            w = float(M[:, a:a + p["bptt"]].sum())
+            total, count = total + float(loss) * w, count + w
+        val = evaluate_loss(model, val_seqs, delay, device) if val_seqs else float("nan")
+        history.append(dict(epoch=epoch + 1, train_loss=total / max(count, 1), val_loss=val,
+                            seconds=time.perf_counter() - t0))
+        bar.set_postfix(train=f"{history[-1]['train_loss']:.3f}", val=f"{val:.3f}")
+    return model, history
+
+
+def evaluate_loss(model: DelayedLSTM, seqs: list, delay: int, device) -> float:
+    """The training loss on whole sequences (state reset per sequence)."""
+    se, n = 0.0, 0
+    for x, y, ok in seqs:
+        pred = predict_sequence(model, x, delay, device)
+        se += float((((pred - y) ** 2).sum(-1) * ok).sum())
+        n += int(ok.sum())
+    return se / max(n, 1) if n else math.nan

@@ -1,0 +1,65 @@
+"""The model folder: everything synthesis needs, and loud failure when pieces do not match.
+
+    models/<model>/
+        weights.pt        torch state_dict
+        config.json       model family, delay, sizes, params, PCA fingerprint
+        arrays.npz        feature_mean (28,), feature_std (28,), pca_mean (36,), pca_components (k, 36)
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import LipsynthError
+
+FILES = ("weights.pt", "config.json", "arrays.npz")
+
+
+class ModelError(LipsynthError):
+    """A model folder is missing, incomplete, or does not match the data it is used with."""
+
+
+def save_model(folder, model, config: dict, feature_mean, feature_std, basis: dict, pca_attrs: dict) -> None:
+    import torch
+    from stages.pca.pca import fingerprint
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    torch.save(model.state_dict(), folder / "weights.pt")
+    config = dict(config, pca_fingerprint=fingerprint(basis), lip_points=pca_attrs["lip_points"],
+                  iod_px=pca_attrs["iod_px"], format=1)
+    (folder / "config.json").write_text(json.dumps(config, indent=2))
+    np.savez(folder / "arrays.npz", feature_mean=feature_mean, feature_std=feature_std,
+             pca_mean=basis["mean"], pca_components=basis["components"])
+
+
+def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
+    """Load a model folder → (model, config, arrays). Raises ModelError on any inconsistency."""
+    import torch
+    from stages.pca.pca import fingerprint
+    from stages.train.lstm import DelayedLSTM
+    folder = Path(folder)
+    missing = [f for f in FILES if not (folder / f).exists()]
+    if missing:
+        raise ModelError(f"{folder}: not a lipsynth model folder (missing {', '.join(missing)}) — run `dvc repro train`")
+    config = json.loads((folder / "config.json").read_text())
+    arrays = dict(np.load(folder / "arrays.npz"))
+    basis = dict(mean=arrays["pca_mean"], components=arrays["pca_components"])
+    if fingerprint(basis) != config.get("pca_fingerprint"):
+        raise ModelError(f"{folder}: PCA basis in arrays.npz does not match config.json (mixed files from two runs?)")
+    if expect_fingerprint is not None and expect_fingerprint != config["pca_fingerprint"]:
+        raise ModelError(f"{folder}: trained on PCA basis {config['pca_fingerprint']}, but the store uses "
+                         f"{expect_fingerprint} — retrain (dvc repro) instead of mixing models and data")
+    if config.get("model") != "lstm":
+        raise ModelError(f"{folder}: unknown model family {config.get('model')!r}")
+    k = arrays["pca_components"].shape[0]
+    if config["n_components"] != k or arrays["feature_mean"].shape != (config["n_features"],):
+        raise ModelError(f"{folder}: config sizes ({config['n_features']} features, {config['n_components']} "
+                         f"components) do not match the stored arrays")
+    model = DelayedLSTM(config["n_features"], config["hidden"], k, config.get("layers", 1))
+    try:
+        model.load_state_dict(torch.load(folder / "weights.pt", map_location=device, weights_only=True))
+    except (RuntimeError, KeyError) as exc:
+        raise ModelError(f"{folder}: weights.pt does not fit config.json ({str(exc).splitlines()[0]})") from None
+    return model.to(device), config, arrays

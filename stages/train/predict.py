@@ -1,0 +1,90 @@
+"""predict-mouth — per-frame mouth shapes for an audio file, from a trained model folder.
+
+    lipsynth predict-mouth AUDIO --model models/lstm [--fps 29.97] [--out shapes.npz] [--chunk-seconds 2]
+
+AUDIO is any file PyAV reads (wav, mp3, m4a, the audio of a video...), any rate and channel
+count: it is mixed to mono, resampled to 16 kHz, RMS-normalised and turned into the paper's
+28-D MFCC features. The LSTM runs over them (in chunks that carry its state, if asked — the
+result equals one pass) and its 100 Hz output is sampled at the video frame times
+t_k = k / fps, k < round(duration · fps).
+
+Output (.npz): coeffs (T, 20) PCA coefficients, lip_points (T, 18, 2) canonical texture pixels,
+frame_time (T,) s, fps, pca_fingerprint.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+
+from pipeline import audio_features, media
+from pipeline.errors import BadInputError, ParameterError
+from pipeline.runner import run_main, setup_logging
+
+log = logging.getLogger("lipsynth.predict")
+MIN_SECONDS = 0.5
+
+
+def load_audio(path) -> np.ndarray:
+    """Mono 16 kHz RMS-normalised samples of any audio (or video) file."""
+    samples, _ = media.read_audio(path, audio_features.SAMPLE_RATE)
+    if len(samples) < MIN_SECONDS * audio_features.SAMPLE_RATE:
+        raise BadInputError(path, f"audio too short ({len(samples) / audio_features.SAMPLE_RATE:.2f} s < {MIN_SECONDS} s)")
+    return audio_features.rms_normalize(samples)
+
+
+def frame_count(n_samples: int, fps: float, sample_rate: int = audio_features.SAMPLE_RATE) -> int:
+    """Frames of a video at ``fps`` lasting as long as the audio: round(duration · fps)."""
+    return int(np.floor(n_samples / sample_rate * fps + 0.5))
+
+
+def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: float | None = None,
+                  device: str = "auto") -> dict:
+    """Mouth shapes at ``fps`` for 16 kHz mono ``samples`` (see module doc for the output keys)."""
+    from stages.pca.pca import reconstruct
+    from stages.train.lstm import pick_device, predict_sequence
+    from stages.train.model_folder import load_model
+    from stages.train.evaluate import to_frames
+    if not 1 <= fps <= 240:
+        raise ParameterError(f"--fps {fps}: expected a video frame rate between 1 and 240")
+    dev = pick_device(device)
+    model, config, arrays = load_model(model_dir, dev)
+    x = (audio_features.mfcc_features(samples) - arrays["feature_mean"]) / arrays["feature_std"]
+    chunk = int(chunk_seconds * 100) if chunk_seconds else None
+    c100 = predict_sequence(model, x.astype(np.float32), config["delay"], dev, chunk)
+    n = frame_count(len(samples), fps)
+    t = np.arange(n) / fps
+    coeffs = to_frames(c100, t).astype(np.float32)
+    basis = dict(mean=arrays["pca_mean"], components=arrays["pca_components"])
+    return dict(coeffs=coeffs, lip_points=reconstruct(coeffs, basis).astype(np.float32), frame_time=t,
+                fps=fps, pca_fingerprint=config["pca_fingerprint"], coeffs_100hz=c100)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="lipsynth predict-mouth", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("audio", help="audio or video file")
+    ap.add_argument("--model", default="models/lstm", help="model folder (default: models/lstm)")
+    ap.add_argument("--fps", type=float, default=25.0, help="output frame rate (25, 29.97, 30, ...)")
+    ap.add_argument("--out", default=None, help="output .npz (default: AUDIO stem + .mouth.npz)")
+    ap.add_argument("--chunk-seconds", type=float, default=None, help="stream the LSTM in chunks of this length")
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("-v", "--verbose", action="store_true")
+    a = ap.parse_args(argv)
+    setup_logging(a.verbose)
+
+    def go():
+        result = predict_mouth(load_audio(a.audio), a.model, a.fps, a.chunk_seconds, a.device)
+        out = Path(a.out or Path(a.audio).with_suffix(".mouth.npz"))
+        tmp = out.with_name(out.name + ".tmp.npz")
+        np.savez(tmp, **{k: v for k, v in result.items() if k != "coeffs_100hz"})
+        os.replace(tmp, out)
+        log.info("%d frames at %.3f fps → %s", len(result["coeffs"]), a.fps, out)
+    return run_main(go)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

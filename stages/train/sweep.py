@@ -1,0 +1,63 @@
+"""delay-sweep — validation loss of the LSTM against its target delay (paper 000 Fig. 9a, Table 1).
+
+Trains the ``train`` LSTM once per delay in ``delay_sweep.delays`` (10 ms steps) on the same
+data, normalisation and seed, and writes one row per delay to ``delay_sweep.plots`` (a DVC plot:
+delay_ms on x, val_loss / val_mouth_error_px on y).
+
+Run: ``python -m stages.train.sweep``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import logging
+import os
+from pathlib import Path
+
+from pipeline.params import load_params
+from pipeline.runner import run_main, setup_logging
+
+log = logging.getLogger("lipsynth.sweep")
+
+
+def run(params: dict, ingest_path: str, pca_path: str) -> list[dict]:
+    from stages.train.lstm import pick_device
+    from stages.train.train import fit_lstm, load_sequences, normalisation, score
+    p, s = params["train"], params["delay_sweep"]
+    data, basis, pattrs = load_sequences(ingest_path, pca_path)
+    device = pick_device(p["device"])
+    mean, std = normalisation(data["train"])
+    rows = []
+    for d in s["delays"]:
+        _, hist, preds = fit_lstm(data, dict(p, epochs=s["epochs"]), d, device, mean, std, desc="sweep")
+        sc = score(preds, data, basis, pattrs["iod_px"])
+        rows.append(dict(delay_steps=d, delay_ms=10 * d, train_loss=hist[-1]["train_loss"],
+                         val_loss=hist[-1]["val_loss"], val_mouth_error_px=sc["mouth_error_px"],
+                         median_opening_corr=sc["median_opening_corr"]))
+        log.info("delay %3d ms: val loss %.4f, mouth error %.3f px", 10 * d, rows[-1]["val_loss"],
+                 rows[-1]["val_mouth_error_px"])
+    out = Path(s["plots"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.5f}" if isinstance(v, float) else v) for k, v in r.items()})
+    os.replace(tmp, out)
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="lipsynth delay-sweep", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("-v", "--verbose", action="store_true")
+    a = ap.parse_args(argv)
+    setup_logging(a.verbose)
+    params = load_params(a.params)
+    return run_main(run, params, params["ingest"]["out"], params["pca"]["out"])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,143 @@
+"""train — audio → mouth shape models (paper 000 §3.1.1, §4.2), selected by ``train.model``.
+
+Model families live beside each other in this folder; ``lstm`` (the paper's time-delayed LSTM)
+is the default. Whatever the family, the stage writes one self-contained model folder
+(``models/<model>/``: weights, input normalisation, PCA basis, params), DVC metrics
+(``metrics/train.json``: losses, validation mouth error of the model and of the baselines —
+the mean mouth shape and the same LSTM without delay) and the loss curves (``plots/``).
+
+Run: ``python -m stages.train.train``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import logging
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import LipsynthError, ParameterError
+from pipeline.params import load_params
+from pipeline.runner import run_main, setup_logging
+from pipeline.store import atomic_output, open_group
+from stages.train import evaluate
+from stages.train.model_folder import save_model
+
+log = logging.getLogger("lipsynth.train")
+MODELS = ("lstm",)
+
+
+def load_sequences(ingest_path: str, pca_path: str):
+    """Per-video (x (m, 28), y (m, 20), ok (m,)) at 100 Hz, plus frame-rate truth for evaluation."""
+    src, pca = open_group(ingest_path), open_group(pca_path)
+    mfcc = np.asarray(src["mfcc"][...], np.float32)
+    c100 = np.asarray(pca["coeffs_100hz"][...], np.float32)
+    v100 = np.asarray(pca["valid_100hz"][...])
+    coeffs = np.asarray(pca["coeffs"][...], np.float32)
+    valid = np.asarray(pca["valid"][...])
+    ftime = np.asarray(src["frame_time"][...])
+    out = {"train": [], "val": []}
+    for v in pca.attrs["videos"]:
+        if v.get("excluded"):
+            continue
+        m0, m, f0, n = v["first_mfcc"], v["n_mfcc"], v["first_frame"], v["n_frames"]
+        out[v["split"]].append(dict(name=v["name"], fps=v["fps"], x=mfcc[m0:m0 + m], y=c100[m0:m0 + m],
+                                    ok=v100[m0:m0 + m], frame_y=coeffs[f0:f0 + n], frame_ok=valid[f0:f0 + n],
+                                    frame_time=ftime[f0:f0 + n]))
+    if not out["train"]:
+        raise LipsynthError(f"{pca_path}: no training videos")
+    if not out["val"]:
+        raise LipsynthError(f"{pca_path}: no validation videos (raise data.val_fraction or add videos)")
+    basis = {k: np.asarray(pca[k][...], np.float64) for k in ("mean", "components")}
+    return out, basis, dict(pca.attrs)
+
+
+def normalisation(train: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+    x = np.concatenate([s["x"] for s in train])
+    return x.mean(0).astype(np.float32), np.maximum(x.std(0), 1e-6).astype(np.float32)
+
+
+def fit_lstm(data: dict, p: dict, delay: int, device, mean, std, desc="lstm"):
+    from stages.train import lstm
+    norm = lambda s: ((s["x"] - mean) / std, s["y"], s["ok"])
+    model, history = lstm.train([norm(s) for s in data["train"]], [norm(s) for s in data["val"]], p, delay,
+                                device, seed=p["seed"], desc=desc)
+    preds = [lstm.predict_sequence(model, norm(s)[0], delay, device) for s in data["val"]]
+    return model, history, preds
+
+
+def score(preds100: list, data: dict, basis: dict, iod_px: float) -> dict:
+    frames = [evaluate.to_frames(c, s["frame_time"]) for c, s in zip(preds100, data["val"])]
+    return evaluate.evaluate_videos(frames, [s["frame_y"] for s in data["val"]], [s["frame_ok"] for s in data["val"]],
+                                    [s["fps"] for s in data["val"]], basis, iod_px)
+
+
+def run(params: dict, ingest_path: str, pca_path: str) -> dict:
+    from stages.train.lstm import pick_device
+    p = params["train"]
+    if p["model"] not in MODELS:
+        raise ParameterError(f"train.model={p['model']!r}: choose one of {', '.join(MODELS)}")
+    data, basis, pattrs = load_sequences(ingest_path, pca_path)
+    device = pick_device(p["device"])
+    mean, std = normalisation(data["train"])
+    log.info("training %s on %d videos (%d steps), validating on %d videos, device %s", p["model"],
+             len(data["train"]), sum(len(s["x"]) for s in data["train"]), len(data["val"]), device)
+    model, history, preds = fit_lstm(data, p, p["delay"], device, mean, std)
+    metrics = {"model": p["model"], "delay_steps": p["delay"], "train_loss": history[-1]["train_loss"],
+               "val_loss": history[-1]["val_loss"], "val": score(preds, data, basis, pattrs["iod_px"])}
+    k = basis["components"].shape[0]
+    mean_shape = np.concatenate([s["y"][s["ok"]] for s in data["train"]]).mean(0)
+    metrics["baseline_mean_shape"] = score([np.tile(mean_shape, (len(s["x"]), 1)) for s in data["val"]],
+                                           data, basis, pattrs["iod_px"])
+    curves = {f"{p['model']}": history}
+    if p["baselines"] and p["delay"] != 0:
+        _, h0, preds0 = fit_lstm(data, p, 0, device, mean, std, desc="baseline")
+        metrics["baseline_lstm_delay0"] = dict(score(preds0, data, basis, pattrs["iod_px"]),
+                                               val_loss=h0[-1]["val_loss"], train_loss=h0[-1]["train_loss"])
+        curves[f"{p['model']}_delay0"] = h0
+    metrics["ratio_to_mean_shape"] = metrics["val"]["mouth_error_px"] / metrics["baseline_mean_shape"]["mouth_error_px"]
+    log.info("validation mouth error: %s %.3f px (%.2f%% IOD); mean shape %.3f px; ratio %.2f",
+             p["model"], metrics["val"]["mouth_error_px"], metrics["val"]["mouth_error_iod_pct"],
+             metrics["baseline_mean_shape"]["mouth_error_px"], metrics["ratio_to_mean_shape"])
+    with atomic_output(p["out"]) as tmp:
+        save_model(tmp, model, dict(model=p["model"], delay=p["delay"], hidden=p["hidden"], layers=p.get("layers", 1),
+                                    n_features=int(mean.shape[0]), n_components=k, feature_rate=100.0,
+                                    params=p), mean, std, basis, pattrs)
+    write_outputs(metrics, curves, p)
+    return metrics
+
+
+def write_outputs(metrics: dict, curves: dict, p: dict) -> None:
+    Path(p["metrics"]).parent.mkdir(parents=True, exist_ok=True)
+    tmp = p["metrics"] + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(metrics, f, indent=2)
+    os.replace(tmp, p["metrics"])
+    Path(p["plots"]).parent.mkdir(parents=True, exist_ok=True)
+    tmp = p["plots"] + ".tmp"
+    with open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["model", "epoch", "train_loss", "val_loss"])
+        for name, hist in curves.items():
+            for h in hist:
+                w.writerow([name, h["epoch"], f"{h['train_loss']:.5f}", f"{h['val_loss']:.5f}"])
+    os.replace(tmp, p["plots"])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="lipsynth train", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("-v", "--verbose", action="store_true")
+    a = ap.parse_args(argv)
+    setup_logging(a.verbose)
+    params = load_params(a.params)
+    return run_main(run, params, params["ingest"]["out"], params["pca"]["out"])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
