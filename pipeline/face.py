@@ -33,7 +33,7 @@ def predictor():
 
 def detect_faces(gray: np.ndarray, upsample: int = 0) -> list[tuple[np.ndarray, float]]:
     """HOG detections as ``(box, score)``, box = [x0, y0, x1, y1] in pixels, best first."""
-    dets, scores, _ = detector().run(gray, upsample, 0.0)
+    dets, scores, _ = detector().run(np.ascontiguousarray(gray), upsample, 0.0)
     out = [(np.array([d.left(), d.top(), d.right(), d.bottom()], float), float(s)) for d, s in zip(dets, scores)]
     return sorted(out, key=lambda ds: -ds[1])
 
@@ -52,7 +52,7 @@ def predict_landmarks(gray: np.ndarray, box) -> np.ndarray:
     """68 landmarks (68, 2) float32 pixel coordinates inside ``box`` = [x0, y0, x1, y1]."""
     import dlib
     r = dlib.rectangle(int(round(box[0])), int(round(box[1])), int(round(box[2])), int(round(box[3])))
-    s = predictor()(gray, r)
+    s = predictor()(np.ascontiguousarray(gray), r)
     return np.array([(p.x, p.y) for p in s.parts()], np.float32)
 
 

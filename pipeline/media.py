@@ -66,7 +66,7 @@ def yuv_planes(frame: av.VideoFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray
     out = []
     for plane in frame.planes:
         buf = np.frombuffer(plane, np.uint8).reshape(-1, plane.line_size)
-        out.append(buf[:plane.height, :plane.width])
+        out.append(np.ascontiguousarray(buf[:plane.height, :plane.width]))   # drop row padding (dlib ignores strides)
     return out[0], out[1], out[2]
 
 
@@ -101,7 +101,7 @@ def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Itera
                 elif fmt == "gray":
                     yield t, yuv_planes(frame)[0]
                 else:
-                    yield t, frame.to_ndarray(format=fmt)
+                    yield t, np.ascontiguousarray(frame.to_ndarray(format=fmt))
         except av.error.FFmpegError as exc:
             raise BadInputError(path, f"video stream is corrupt ({exc})") from None
 

@@ -10,6 +10,8 @@ import av
 import dlib
 import numpy as np
 import pytest
+
+from pipeline import face
 from scipy.ndimage import uniform_filter1d
 
 from stages.synthetic_speaker import generate as gen
@@ -196,7 +198,7 @@ def test_hog_finds_the_face_and_predictor_agrees_with_truth(corpus):
     truth = np.load(corpus / "first" / "speaker_00.truth.npz")
     assert len(frames) == len(truth["landmarks"])
     detector = dlib.get_frontal_face_detector()
-    predictor = dlib.shape_predictor(gen.shape_predictor_path())
+    predictor = dlib.shape_predictor(face.predictor_path())
     found, errors = 0, []
     for t, frame in enumerate(frames):
         boxes = detector(frame, 0)

@@ -22,7 +22,6 @@ Run ``python -m stages.synthetic_speaker.generate --help``.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import logging
 import os
 import shutil
@@ -42,6 +41,7 @@ from scipy.signal import butter, lfilter, sosfilt
 from scipy.spatial import Delaunay
 from tqdm import tqdm
 
+from pipeline import face
 from pipeline.errors import LipsynthError, ParameterError
 from pipeline.params import require, section
 
@@ -236,15 +236,6 @@ class FaceTemplate:
     eyelid_rgb: np.ndarray
 
 
-def shape_predictor_path() -> str:
-    """Path of dlib's 68-point model inside the ``face_recognition_models`` package."""
-    spec = importlib.util.find_spec("face_recognition_models")
-    if spec is None or spec.origin is None:
-        raise RuntimeError("face_recognition_models is not installed")
-    return os.path.join(os.path.dirname(spec.origin), "models",
-                        "shape_predictor_68_face_landmarks.dat")
-
-
 def detect_face(image: np.ndarray) -> tuple[dlib.rectangle, np.ndarray]:
     """Detect the single face of an RGB image and its 68 landmarks.
 
@@ -259,12 +250,12 @@ def detect_face(image: np.ndarray) -> tuple[dlib.rectangle, np.ndarray]:
     landmarks : ndarray, (68, 2) float64
         Landmark pixel coordinates (x, y).
     """
-    boxes = dlib.get_frontal_face_detector()(image, 0)
-    if len(boxes) != 1:
-        raise RuntimeError(f"expected one face in the template photo, found {len(boxes)}")
-    shape = dlib.shape_predictor(shape_predictor_path())(image, boxes[0])
-    landmarks = np.array([[p.x, p.y] for p in shape.parts()], dtype=np.float64)
-    return boxes[0], landmarks
+    found = face.detect_faces(image, 0)
+    if len(found) != 1:
+        raise RuntimeError(f"expected one face in the template photo, found {len(found)}")
+    box = found[0][0]
+    landmarks = face.predict_landmarks(image, box).astype(np.float64)
+    return dlib.rectangle(*(int(round(v)) for v in box)), landmarks
 
 
 def crop_affine(box: dlib.rectangle, width: int, height: int) -> np.ndarray:
