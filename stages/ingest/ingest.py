@@ -255,6 +255,7 @@ def run(params: dict, out: str) -> list[dict]:
     paths = list_videos(data["videos"])
     splits = split_videos([video_name(q) for q in paths], data["val_fraction"], data["split_seed"])
     log.info("ingesting %d videos from %s", len(paths), data["videos"])
+    Path(out).absolute().parent.mkdir(parents=True, exist_ok=True)
     scratch = tempfile.mkdtemp(prefix=".ingest-scratch-", dir=Path(out).absolute().parent)
     try:
         with client_for(cluster) as client:
@@ -313,7 +314,8 @@ def main(argv=None) -> int:
     ap.add_argument("-v", "--verbose", action="store_true")
     a = ap.parse_args(argv)
     setup_logging(a.verbose)
-    return run_main(lambda: run(load_params(a.params), a.out or load_params(a.params)["ingest"]["out"]))
+    params = load_params(a.params)
+    return run_main(run, params, a.out or params["ingest"]["out"])
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ def lagged_correlation(pred: np.ndarray, true: np.ndarray, max_lag: int) -> dict
         a = pred[max(lag, 0):len(pred) + min(lag, 0)]
         b = true[max(-lag, 0):len(true) + min(-lag, 0)]
         ok = np.isfinite(a) & np.isfinite(b)
-        if ok.sum() > 3 and np.std(a[ok]) > 0 and np.std(b[ok]) > 0:
+        if ok.sum() > 3 and np.std(a[ok]) > 1e-6 and np.std(b[ok]) > 1e-6:
             out[lag] = float(np.corrcoef(a[ok], b[ok])[0, 1])
         else:
             out[lag] = float("nan")

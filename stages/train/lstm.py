@@ -132,7 +132,7 @@ def train(train_seqs: list, val_seqs: list, p: dict, delay: int, device, seed: i
             loss.backward()
             opt.step()
             w = float(M[:, a:a + p["bptt"]].sum())
-            total, count = total + float(loss) * w, count + w
+            total, count = total + loss.item() * w, count + w
         val = evaluate_loss(model, val_seqs, delay, device) if val_seqs else float("nan")
         history.append(dict(epoch=epoch + 1, train_loss=total / max(count, 1), val_loss=val,
                             seconds=time.perf_counter() - t0))
