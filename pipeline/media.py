@@ -131,9 +131,13 @@ def read_audio(path, sample_rate: int = 16000) -> tuple[np.ndarray, float]:
                 chunks.append(out.to_ndarray().reshape(-1))
         except av.error.FFmpegError as exc:
             raise BadInputError(path, f"audio stream is corrupt ({exc})") from None
+        declared = float(a.duration * a.time_base) if a.duration else None
     if not chunks:
         raise BadInputError(path, "audio track holds no samples")
-    return np.concatenate(chunks).astype(np.float32), float(start or 0.0)
+    samples = np.concatenate(chunks).astype(np.float32)
+    if declared:  # AAC decoders emit the encoder's padding past the stream's declared end: drop it
+        samples = samples[:int(round(declared * sample_rate))]
+    return samples, float(start or 0.0)
 
 
 def align_audio(samples: np.ndarray, audio_start: float, video_start: float, duration: float,
