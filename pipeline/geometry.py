@@ -36,10 +36,9 @@ def solve_pose(model: np.ndarray, image: np.ndarray, K: np.ndarray, guess=None) 
     model = np.ascontiguousarray(model, np.float64)
     image = np.ascontiguousarray(image, np.float64)
     if guess is None:
-        ok, rvec, tvec = cv2.solvePnP(model, image, K, None, flags=cv2.SOLVEPNP_SQPNP)
+        _, rvec, tvec = cv2.solvePnP(model, image, K, None, flags=cv2.SOLVEPNP_SQPNP)
     else:
         rvec, tvec = (np.asarray(g, np.float64).reshape(3, 1).copy() for g in guess)
-        ok = True
     rvec, tvec = cv2.solvePnPRefineLM(model, image, K, None, rvec, tvec)
     err = np.sqrt(np.mean(np.sum((project(model, rvec, tvec, K) - image) ** 2, axis=1)))
     return rvec.reshape(3), tvec.reshape(3), float(err)

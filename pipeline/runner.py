@@ -22,3 +22,17 @@ def run_main(fn, *args, **kwargs) -> int:
         print(f"lipsynth: error: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def stage_main(prog: str, doc: str, run, argv=None) -> int:
+    """The command line of one stage: ``--params FILE`` and ``-v``; ``run(params)`` does the work."""
+    import argparse
+
+    from .params import load_params
+
+    ap = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    a = ap.parse_args(argv)
+    setup_logging(a.verbose)
+    return run_main(lambda: run(load_params(a.params)))

@@ -1,7 +1,12 @@
 import os
 from pathlib import Path
 
+import cv2
 import pytest
+import skimage.data
+
+from pipeline import face
+from stages.frontalize import model3d
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("LIPSYNTH_SHARED_DATA", ROOT.parent / "shared" / "data"))
@@ -18,3 +23,13 @@ def shared(*parts) -> Path:
 @pytest.fixture(autouse=True)
 def _project_cwd(monkeypatch):
     monkeypatch.chdir(ROOT)
+
+
+@pytest.fixture(scope="session")
+def face3d():
+    """A realistic 68-point model: dlib landmarks of a real photo + the anthropometric depth prior."""
+    photo = skimage.data.astronaut()
+    gray = cv2.cvtColor(photo, cv2.COLOR_RGB2GRAY)
+    box, _ = face.detect_faces(gray)[0]
+    mean2d = model3d.mean_shape_2d(face.predict_landmarks(gray, box)[None].astype(float))
+    return model3d._to_canonical(model3d.prior_shape(mean2d))

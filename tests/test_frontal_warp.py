@@ -6,7 +6,6 @@ import skimage.data
 from pipeline.geometry import intrinsics, project
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
 from stages.frontalize.warp import Surface, TextureWindow, frontal_landmarks, frontal_texture
-from tests.test_pose import face3d  # noqa: F401  (fixture)
 
 
 @pytest.fixture(scope="module")

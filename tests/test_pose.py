@@ -1,22 +1,9 @@
 """Pose recovery and the 3D model on synthetic projections with known ground truth."""
-import cv2
 import numpy as np
 import pytest
-import skimage.data
 
-from pipeline import face
 from pipeline.geometry import intrinsics, project, rotation, rotation_angle_deg, solve_pose
 from stages.frontalize import model3d
-
-
-@pytest.fixture(scope="module")
-def face3d():
-    """A realistic 68-point model: dlib landmarks of a real photo + the anthropometric depth prior."""
-    photo = skimage.data.astronaut()
-    gray = cv2.cvtColor(photo, cv2.COLOR_RGB2GRAY)
-    box, _ = face.detect_faces(gray)[0]
-    mean2d = model3d.mean_shape_2d(face.predict_landmarks(gray, box)[None].astype(float))
-    return model3d._to_canonical(model3d.prior_shape(mean2d))
 
 
 def random_poses(rng, n, max_deg):

@@ -21,7 +21,6 @@ Run: ``python -m stages.frontalize.frontalize``.
 """
 from __future__ import annotations
 
-import argparse
 import logging
 from pathlib import Path
 
@@ -29,9 +28,8 @@ import numpy as np
 
 from pipeline.errors import LipsynthError
 from pipeline.geometry import euler_degrees, intrinsics, solve_pose
-from pipeline.params import load_params
 from pipeline.parallel import client_for, run_tasks
-from pipeline.runner import run_main, setup_logging
+from pipeline.runner import stage_main
 from pipeline.store import (atomic_output, create_group, create_timed, i420_to_rgb, open_group, rgb_to_i420,
                             shard_ranges, video_of_frames)
 from stages.frontalize import model3d
@@ -193,14 +191,7 @@ def run(params: dict, ingest_path: str, landmarks_path: str, out: str) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="lipsynth frontalize", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    a = ap.parse_args(argv)
-    setup_logging(a.verbose)
-    params = load_params(a.params)
-    return run_main(run, params, params["ingest"]["out"], params["landmarks"]["out"], params["frontalize"]["out"])
+    return stage_main("lipsynth frontalize", __doc__, lambda p: run(p, p["ingest"]["out"], p["landmarks"]["out"], p["frontalize"]["out"]), argv)
 
 
 if __name__ == "__main__":

@@ -23,7 +23,6 @@ Run: ``python -m stages.ingest.ingest`` (reads ``data``, ``ingest`` and ``cluste
 """
 from __future__ import annotations
 
-import argparse
 import glob
 import hashlib
 import logging
@@ -37,9 +36,8 @@ import numpy as np
 
 from pipeline import audio_features, face, media
 from pipeline.errors import BadInputError, LipsynthError, ParameterError
-from pipeline.params import load_params
 from pipeline.parallel import client_for, run_tasks
-from pipeline.runner import run_main, setup_logging
+from pipeline.runner import stage_main
 from pipeline.store import atomic_output, create_group, create_timed, shard_ranges
 
 log = logging.getLogger("lipsynth.ingest")
@@ -291,7 +289,7 @@ def run(params: dict, out: str) -> list[dict]:
                 }
                 vid = np.concatenate([np.full(e["n_frames"], e["id"], np.int32) for e in entries])
                 create_timed(g, "video_id", n_frames, (), "int32", sh, sh)[:] = vid
-                jobs, weights = [], []
+                jobs = []
                 for name, (arr, key, first, count) in arrays.items():
                     shard = arr.shards[0]
                     for a, b in shard_ranges(arr.shape[0], shard):
@@ -307,15 +305,7 @@ def run(params: dict, out: str) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="lipsynth ingest", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
-    ap.add_argument("--out", default=None, help="output store (default: params ingest.out)")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    a = ap.parse_args(argv)
-    setup_logging(a.verbose)
-    params = load_params(a.params)
-    return run_main(run, params, a.out or params["ingest"]["out"])
+    return stage_main("lipsynth ingest", __doc__, lambda p: run(p, p["ingest"]["out"]), argv)
 
 
 if __name__ == "__main__":

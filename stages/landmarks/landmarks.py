@@ -21,7 +21,6 @@ Run: ``python -m stages.landmarks.landmarks``.
 """
 from __future__ import annotations
 
-import argparse
 import logging
 from pathlib import Path
 
@@ -29,9 +28,8 @@ import numpy as np
 
 from pipeline import face
 from pipeline.errors import LipsynthError
-from pipeline.params import load_params
 from pipeline.parallel import client_for, run_tasks
-from pipeline.runner import run_main, setup_logging
+from pipeline.runner import stage_main
 from pipeline.store import atomic_output, create_group, create_timed, open_group, shard_ranges, video_of_frames
 
 log = logging.getLogger("lipsynth.landmarks")
@@ -169,14 +167,7 @@ def run(params: dict, ingest_path: str, out: str) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="lipsynth landmarks", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    a = ap.parse_args(argv)
-    setup_logging(a.verbose)
-    params = load_params(a.params)
-    return run_main(run, params, params["ingest"]["out"], params["landmarks"]["out"])
+    return stage_main("lipsynth landmarks", __doc__, lambda p: run(p, p["ingest"]["out"], p["landmarks"]["out"]), argv)
 
 
 if __name__ == "__main__":

@@ -19,15 +19,13 @@ Run: ``python -m stages.pca.pca``.
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import logging
 
 import numpy as np
 
 from pipeline.errors import LipsynthError
-from pipeline.params import load_params
-from pipeline.runner import run_main, setup_logging
+from pipeline.runner import stage_main
 from pipeline.store import atomic_output, create_group, create_timed, open_group
 
 log = logging.getLogger("lipsynth.pca")
@@ -138,15 +136,7 @@ def run(params: dict, ingest_path: str, landmarks_path: str, frontalize_path: st
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="lipsynth pca", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    a = ap.parse_args(argv)
-    setup_logging(a.verbose)
-    params = load_params(a.params)
-    return run_main(run, params, params["ingest"]["out"], params["landmarks"]["out"], params["frontalize"]["out"],
-                    params["pca"]["out"])
+    return stage_main("lipsynth pca", __doc__, lambda p: run(p, p["ingest"]["out"], p["landmarks"]["out"], p["frontalize"]["out"], p["pca"]["out"]), argv)
 
 
 if __name__ == "__main__":

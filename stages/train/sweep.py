@@ -8,14 +8,12 @@ Run: ``python -m stages.train.sweep``.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import logging
 import os
 from pathlib import Path
 
-from pipeline.params import load_params
-from pipeline.runner import run_main, setup_logging
+from pipeline.runner import stage_main
 
 log = logging.getLogger("lipsynth.sweep")
 
@@ -49,14 +47,7 @@ def run(params: dict, ingest_path: str, pca_path: str) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="lipsynth delay-sweep", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    a = ap.parse_args(argv)
-    setup_logging(a.verbose)
-    params = load_params(a.params)
-    return run_main(run, params, params["ingest"]["out"], params["pca"]["out"])
+    return stage_main("lipsynth delay-sweep", __doc__, lambda p: run(p, p["ingest"]["out"], p["pca"]["out"]), argv)
 
 
 if __name__ == "__main__":

@@ -10,19 +10,16 @@ Run: ``python -m stages.train.train``.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import logging
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.errors import LipsynthError, ParameterError
-from pipeline.params import load_params
-from pipeline.runner import run_main, setup_logging
+from pipeline.runner import stage_main
 from pipeline.store import atomic_output, open_group
 from stages.train import evaluate
 from stages.train.model_folder import save_model
@@ -129,14 +126,7 @@ def write_outputs(metrics: dict, curves: dict, p: dict) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="lipsynth train", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    a = ap.parse_args(argv)
-    setup_logging(a.verbose)
-    params = load_params(a.params)
-    return run_main(run, params, params["ingest"]["out"], params["pca"]["out"])
+    return stage_main("lipsynth train", __doc__, lambda p: run(p, p["ingest"]["out"], p["pca"]["out"]), argv)
 
 
 if __name__ == "__main__":
