@@ -25,6 +25,7 @@ class VideoInfo:
     height: int
     fps: float
     duration: float          # seconds, from the container (may be approximate)
+    n_frames: int            # frame count from the header (0 if the container does not say)
     has_audio: bool
     audio_rate: int | None   # Hz of the first audio stream
     audio_channels: int | None
@@ -55,7 +56,7 @@ def probe(path) -> VideoInfo:
         dur = float(c.duration / av.time_base) if c.duration else (
             float(v.duration * v.time_base) if v.duration else 0.0)
         return VideoInfo(str(path), v.codec_context.width, v.codec_context.height, float(rate), dur,
-                         a is not None, a.codec_context.sample_rate if a else None,
+                         int(v.frames or 0), a is not None, a.codec_context.sample_rate if a else None,
                          a.codec_context.channels if a else None)
 
 

@@ -79,6 +79,16 @@ def shard_ranges(length: int, shard_len: int) -> list[tuple[int, int]]:
     return [(s, min(s + shard_len, length)) for s in range(0, length, shard_len)]
 
 
+def videos_in(videos: list[dict], start: int, stop: int):
+    """The videos with frames in ``[start, stop)``."""
+    return (v for v in videos if v["n_frames"] and v["first_frame"] < stop and v["first_frame"] + v["n_frames"] > start)
+
+
+def occupied_shards(videos: list[dict], length: int, shard_len: int) -> list[tuple[int, int]]:
+    """The shard ranges of a frame axis that hold frames of at least one video."""
+    return [(a, b) for a, b in shard_ranges(length, shard_len) if any(True for _ in videos_in(videos, a, b))]
+
+
 def stored_bytes(path) -> int:
     """Bytes on disk under ``path`` (a zarr array or group directory)."""
     return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file())
@@ -87,6 +97,8 @@ def stored_bytes(path) -> int:
 def video_of_frames(videos: list[dict], start: int, stop: int):
     """Yield ``(video, lo, hi)``: the part ``[lo, hi)`` of global frames ``[start, stop)`` in each video."""
     for v in videos:
+        if not v["n_frames"]:
+            continue
         lo = max(start, v["first_frame"])
         hi = min(stop, v["first_frame"] + v["n_frames"])
         if lo < hi:

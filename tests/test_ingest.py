@@ -11,7 +11,7 @@ import yaml
 from pipeline import media
 from pipeline.errors import BadInputError
 from pipeline.params import load_params
-from stages.ingest.ingest import ingest_video, list_videos, split_videos
+from stages.ingest.ingest import decode_video, layout, list_videos, probe_video, split_videos
 from tests.conftest import ROOT, shared
 from tests.media_fixtures import face_frames, make_clip
 
@@ -22,7 +22,12 @@ def ingest_params():
 
 
 def run_one(path, params, tmp_path):
-    return ingest_video(dict(path=str(path), params=params, scratch=str(tmp_path)))
+    """probe + decode one video as the stage does; {"error": msg} for bad input."""
+    try:
+        probe_video(str(path), params)
+        return decode_video(str(path), params)
+    except BadInputError as exc:
+        return {"error": str(exc)}
 
 
 def test_split_is_deterministic_by_video_and_stable():
@@ -44,16 +49,25 @@ def test_rates_channels_and_audio_alignment(tmp_path, ingest_params, fps, rate, 
                      audio_delay=delay, tone_at=1.0)
     e = run_one(path, ingest_params, tmp_path)
     assert "error" not in e, e
-    assert e["n_frames"] == 60 and e["fps"] == pytest.approx(float(fps), rel=1e-4)
-    assert e["n_samples"] == round(60 / float(fps) * 16000)
-    assert e["n_mfcc"] == 1 + e["n_samples"] // 160
+    assert len(e["crops"]) == 60 and e["fps"] == pytest.approx(float(fps), rel=1e-4)
+    assert len(e["audio"]) == round(60 / float(fps) * 16000)
+    assert len(e["mfcc"]) == 1 + len(e["audio"]) // 160
     assert e["audio_offset"] == pytest.approx(delay, abs=0.03)
-    audio = np.load(e["scratch"] + ".audio.npy").astype(float) / 32767
-    times = np.load(e["scratch"] + ".time.npy")
+    audio, times = e["audio"].astype(float), e["frame_time"]
     assert times[0] == 0 and np.allclose(np.diff(times), 1 / float(fps), atol=1e-3)
     env = np.convolve(np.abs(audio), np.ones(160) / 160, "same")
     onset = np.argmax(env > 0.5 * env.max()) / 16000
     assert onset == pytest.approx(1.0 + delay, abs=0.04)       # the tone is heard when it should be
+
+
+def test_layout_starts_every_video_on_a_shard():
+    entries = [dict(est_frames=75, fps=25.0), dict(est_frames=600, fps=29.97), dict(est_frames=10, fps=25.0)]
+    n, a, m = layout(entries, 256, 160000, 1000)
+    for e in entries:
+        assert e["first_frame"] % 256 == 0 and e["first_sample"] % 160000 == 0 and e["first_mfcc"] % 1000 == 0
+        assert e["cap_frames"] >= e["est_frames"] and e["cap_samples"] >= e["cap_frames"] / e["fps"] * 16000
+    ends = [e["first_frame"] + e["cap_frames"] for e in entries]
+    assert all(end <= nxt["first_frame"] for end, nxt in zip(ends, entries[1:])) and ends[-1] <= n
 
 
 def test_list_videos_folder_glob_and_errors(tmp_path):

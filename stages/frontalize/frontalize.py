@@ -30,8 +30,8 @@ from pipeline.errors import LipsynthError
 from pipeline.geometry import euler_degrees, intrinsics, solve_pose
 from pipeline.parallel import client_for, run_tasks
 from pipeline.runner import stage_main
-from pipeline.store import (atomic_output, create_group, create_timed, i420_to_rgb, open_group, rgb_to_i420,
-                            shard_ranges, video_of_frames)
+from pipeline.store import (atomic_output, create_group, create_timed, i420_to_rgb, occupied_shards, open_group,
+                            rgb_to_i420, video_of_frames, videos_in)
 from stages.frontalize import model3d
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
 from stages.frontalize.warp import (Surface, TextureWindow, clothing_mask, frontal_landmarks, frontal_texture,
@@ -171,12 +171,11 @@ def run(params: dict, ingest_path: str, landmarks_path: str, out: str) -> dict:
         create_timed(g, "pose", n, (6,), "float32", shard, shard)
         create_timed(g, "pose_valid", n, (), "bool", shard, shard, fill_value=False)
         create_timed(g, "reprojection_error", n, (), "float32", shard, shard, fill_value=float("nan"))
-        ranges = shard_ranges(n, shard)
+        ranges = occupied_shards(videos, n, shard)
         common = dict(ingest=str(Path(ingest_path).absolute()), landmarks=str(Path(landmarks_path).absolute()),
                       out=str(tmp), params=p, surface=(surface.x0, surface.y0, surface.step),
                       window=dict(x0=win.x0, y0=win.y0, mm_per_px=win.mm_per_px, size=win.size))
-        jobs = [dict(common, start=a, stop=b, videos=[v for v in videos if v["first_frame"] < b
-                                                      and v["first_frame"] + v["n_frames"] > a]) for a, b in ranges]
+        jobs = [dict(common, start=a, stop=b, videos=list(videos_in(videos, a, b))) for a, b in ranges]
         ok = sum(run_tasks(client, frontalize_block, jobs, "frontalize", "frame", [b - a for a, b in ranges]))
         g.attrs.update(dict(videos=videos, model=report, texture_window=common["window"],
                             grid=dict(x0=surface.x0, y0=surface.y0, step=surface.step), focal_factor=p["focal_factor"],
@@ -186,7 +185,7 @@ def run(params: dict, ingest_path: str, landmarks_path: str, out: str) -> dict:
         if pv.any():
             ang = np.array([euler_degrees(r) for r in pose[pv, :3]])
             log.info("head pose range (yaw, pitch, roll) deg: %s", np.ptp(ang, axis=0).round(1).tolist())
-        log.info("frontalized %d of %d frames", ok, n)
+        log.info("frontalized %d of %d frames", ok, sum(v["n_frames"] for v in videos))
     return report
 
 

@@ -14,10 +14,15 @@ path and timestamps) for compositing.
 Store ``store/ingest.zarr``:
     crops       (N, 3S/2, S) uint8   I420 face-region crop of every frame (S = crop_size)
     frame_time  (N,) float64         presentation time (s) of each frame from its video's start
-    video_id    (N,) int32           index into attrs["videos"]
-    audio       (A,) int16           16 kHz mono RMS-normalised PCM, videos concatenated
+    video_id    (N,) int32           index into attrs["videos"] (−1 in the gaps between videos)
+    audio       (A,) int16           16 kHz mono RMS-normalised PCM
     mfcc        (M, 28) float32      100 Hz features (13 MFCC, log energy, deltas)
-    attrs["videos"]: per-video index (name, path, split, first_frame, n_frames, fps, crop, ...)
+    attrs["videos"]: per-video index (name, path, split, first_frame, n_frames, first_sample,
+    n_samples, first_mfcc, n_mfcc, fps, crop, ...)
+
+Every video starts on a shard boundary of each axis, so the one task that decodes a video
+writes its own shards directly (no scratch copies, no two workers on one file); the gaps after
+each video hold no chunks on disk.
 
 Run: ``python -m stages.ingest.ingest`` (reads ``data``, ``ingest`` and ``cluster`` params).
 """
@@ -27,8 +32,6 @@ import glob
 import hashlib
 import logging
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -180,127 +183,150 @@ def _detect_on(frames: list, max_samples: int, min_face_px: float, upsample: int
     return boxes, small, len(pick)
 
 
+def probe_video(path: str, p: dict) -> dict:
+    """Header-only checks and size estimates of one video (on the client, before any writing)."""
+    info = media.probe(path)
+    if not (p["min_fps"] <= info.fps <= p["max_fps"]):
+        raise BadInputError(path, f"frame rate {info.fps:.3f} fps outside the supported {p['min_fps']}–{p['max_fps']} fps")
+    if not info.has_audio:
+        raise BadInputError(path, "no audio track (training videos need the speaker's audio)")
+    if info.duration and info.duration < p["min_seconds"]:
+        raise BadInputError(path, f"too short: {info.duration:.2f} s < ingest.min_seconds={p['min_seconds']}")
+    est = info.n_frames or int(np.ceil(info.duration * info.fps))
+    return dict(name=video_name(path), path=os.path.abspath(path), fps=info.fps, width=info.width,
+                height=info.height, est_frames=est, source_audio_rate=info.audio_rate,
+                source_audio_channels=info.audio_channels)
+
+
+def decode_video(path: str, p: dict) -> dict:
+    """Everything ingest stores for one video, as arrays (pure of the store).
+
+    Returns
+    -------
+    dict with crops (T, 3S/2, S) uint8, frame_time (T,) s, audio (A,) float32 16 kHz,
+    mfcc (1 + A // 160, 28), crop [x0, y0, s], audio_offset (s), fps.
+    """
+    info = media.probe(path)
+    boxes = find_face_boxes(path, p["detect_samples"], p["min_face_px"], p["detect_upsample"])
+    box = crop_box(boxes, p["crop_scale"], p["crop_shift_down"])
+    size = p["crop_size"]
+    times, crops = [], []
+    for t, yuv in media.iter_frames(path, fmt="yuv"):
+        times.append(t)
+        crops.append(cut_crop(yuv, box, size))
+    n = len(times)
+    if n == 0:
+        raise BadInputError(path, "no decodable video frames")
+    if n / info.fps < p["min_seconds"]:
+        raise BadInputError(path, f"too short: {n / info.fps:.2f} s < ingest.min_seconds={p['min_seconds']}")
+    samples, audio_start = media.read_audio(path, audio_features.SAMPLE_RATE)
+    audio = media.align_audio(samples, audio_start, times[0], n / info.fps, audio_features.SAMPLE_RATE)
+    audio = audio_features.rms_normalize(audio, p["rms_target_dbfs"])
+    return dict(crops=np.stack(crops), frame_time=np.asarray(times) - times[0], audio=audio,
+                mfcc=audio_features.mfcc_features(audio), crop=[box[0], box[1], box[2] / size],
+                audio_offset=audio_start - times[0], fps=info.fps)
+
+
 def ingest_video(job: dict) -> dict:
-    """Decode one video into scratch .npy files; return its index entry or ``{"error": msg}``."""
-    cv2.setNumThreads(1)
-    path, p, scratch = job["path"], job["params"], job["scratch"]
-    try:
-        info = media.probe(path)
-        if not (p["min_fps"] <= info.fps <= p["max_fps"]):
-            raise BadInputError(path, f"frame rate {info.fps:.3f} fps outside the supported {p['min_fps']}–{p['max_fps']} fps")
-        if not info.has_audio:
-            raise BadInputError(path, "no audio track (training videos need the speaker's audio)")
-        boxes = find_face_boxes(path, p["detect_samples"], p["min_face_px"], p["detect_upsample"])
-        box = crop_box(boxes, p["crop_scale"], p["crop_shift_down"])
-        size = p["crop_size"]
-        times, crops = [], []
-        for t, yuv in media.iter_frames(path, fmt="yuv"):
-            times.append(t)
-            crops.append(cut_crop(yuv, box, size))
-        n = len(times)
-        if n == 0:
-            raise BadInputError(path, "no decodable video frames")
-        if n / info.fps < p["min_seconds"]:
-            raise BadInputError(path, f"too short: {n / info.fps:.2f} s < ingest.min_seconds={p['min_seconds']}")
-        samples, audio_start = media.read_audio(path, audio_features.SAMPLE_RATE)
-        video_start = times[0]
-        audio = media.align_audio(samples, audio_start, video_start, n / info.fps, audio_features.SAMPLE_RATE)
-        audio = audio_features.rms_normalize(audio, p["rms_target_dbfs"])
-        mfcc = audio_features.mfcc_features(audio)
-        stem = os.path.join(scratch, hashlib.sha1(path.encode()).hexdigest()[:16])
-        np.save(stem + ".crops.npy", np.stack(crops))
-        np.save(stem + ".audio.npy", np.round(audio * 32767).astype(np.int16))
-        np.save(stem + ".mfcc.npy", mfcc)
-        np.save(stem + ".time.npy", np.asarray(times) - video_start)
-        return dict(name=video_name(path), path=os.path.abspath(path), n_frames=n, fps=info.fps,
-                    width=info.width, height=info.height, crop=[box[0], box[1], box[2] / size],
-                    n_samples=len(audio), n_mfcc=len(mfcc), audio_offset=audio_start - video_start,
-                    source_audio_rate=info.audio_rate, source_audio_channels=info.audio_channels,
-                    scratch=stem)
-    except BadInputError as exc:
-        return {"error": str(exc), "path": path}
+    """Decode one video and write it into its own shard-aligned regions of the store.
 
-
-def copy_block(job: dict) -> int:
-    """Fill global range ``[start, stop)`` of one array from the videos' scratch files."""
+    Returns its measured sizes, or ``{"error": msg}`` for a bad video (nothing is written).
+    """
     import zarr
-    arr = zarr.open_array(job["array"], mode="r+")
-    start, stop, key, first, count = job["start"], job["stop"], job["key"], job["first"], job["count"]
-    block = np.zeros((stop - start,) + arr.shape[1:], arr.dtype)
-    for v in job["videos"]:
-        lo, hi = max(start, v[first]), min(stop, v[first] + v[count])
-        if lo < hi:
-            data = np.load(v["scratch"] + f".{key}.npy", mmap_mode="r")
-            block[lo - start:hi - start] = data[lo - v[first]:hi - v[first]]
-    arr[start:stop] = block
-    return stop - start
+    cv2.setNumThreads(1)
+    e = job["entry"]
+    try:
+        d = decode_video(e["path"], job["params"])
+    except BadInputError as exc:
+        return {"error": str(exc), "path": e["path"]}
+    g = zarr.open_group(job["out"], mode="r+")
+    n, a, m = (min(len(d[k]), e[c]) for k, c in (("crops", "cap_frames"), ("audio", "cap_samples"),
+                                                   ("mfcc", "cap_mfcc")))
+    f0, s0, m0 = e["first_frame"], e["first_sample"], e["first_mfcc"]
+    g["crops"][f0:f0 + n] = d["crops"][:n]
+    g["frame_time"][f0:f0 + n] = d["frame_time"][:n]
+    g["video_id"][f0:f0 + n] = np.full(n, e["id"], np.int32)
+    g["audio"][s0:s0 + a] = np.round(d["audio"][:a] * 32767).astype(np.int16)
+    g["mfcc"][m0:m0 + m] = d["mfcc"][:m]
+    return dict(n_frames=n, n_samples=a, n_mfcc=m, crop=d["crop"], audio_offset=d["audio_offset"],
+                truncated=len(d["crops"]) > n)
 
 
 # ---------------------------------------------------------------- stage
-def layout(entries: list[dict]) -> list[dict]:
-    """Assign each video its first frame / sample / MFCC index on the concatenated axes."""
+def round_up(x: int, multiple: int) -> int:
+    return -(-x // multiple) * multiple
+
+
+def layout(entries: list[dict], shard_frames: int, shard_samples: int, shard_mfcc: int,
+           slack: float = 0.02) -> tuple[int, int, int]:
+    """Give each video its own shard-aligned region on the frame, sample and MFCC axes.
+
+    Every video starts on a shard boundary, so the task that decodes it writes only shards of
+    its own (no two workers touch a file) and nothing has to be copied afterwards. Capacity is
+    the header's estimate plus ``slack``; gaps between videos hold no chunks on disk.
+    Returns the three axis lengths.
+    """
     f = s = m = 0
     for e in entries:
+        frames = int(e["est_frames"] * (1 + slack)) + 8
+        seconds = frames / e["fps"]
+        e["cap_frames"], e["cap_samples"] = frames, int(np.ceil(seconds * audio_features.SAMPLE_RATE))
+        e["cap_mfcc"] = 1 + e["cap_samples"] // audio_features.HOP
         e["first_frame"], e["first_sample"], e["first_mfcc"] = f, s, m
-        f += e["n_frames"]; s += e["n_samples"]; m += e["n_mfcc"]
-    return entries
+        f += round_up(e["cap_frames"], shard_frames)
+        s += round_up(e["cap_samples"], shard_samples)
+        m += round_up(e["cap_mfcc"], shard_mfcc)
+    return f, s, m
 
 
 def run(params: dict, out: str) -> list[dict]:
-    data, p, cluster = params["data"], params["ingest"], params["cluster"]
+    data, p = params["data"], params["ingest"]
     if p["crop_size"] % 4:
         raise ParameterError(f"ingest.crop_size={p['crop_size']}: must be a multiple of 4 (I420 storage)")
     paths = list_videos(data["videos"])
     splits = split_videos([video_name(q) for q in paths], data["val_fraction"], data["split_seed"])
     log.info("ingesting %d videos from %s", len(paths), data["videos"])
-    Path(out).absolute().parent.mkdir(parents=True, exist_ok=True)
-    scratch = tempfile.mkdtemp(prefix=".ingest-scratch-", dir=Path(out).absolute().parent)
-    try:
-        with client_for(cluster) as client:
-            jobs = [dict(path=q, params=p, scratch=scratch) for q in paths]
-            entries = run_tasks(client, ingest_video, jobs, "ingest: decode", "video")
-            bad = [e for e in entries if "error" in e]
-            for e in bad:
-                if data["on_bad_input"] == "skip":
-                    log.warning("skipping %s", e["error"])
-                else:
-                    raise LipsynthError(e["error"] + " (set data.on_bad_input: skip to leave such videos out)")
-            entries = layout([e for e in entries if "error" not in e])
-            if not entries:
-                raise LipsynthError(f"{data['videos']}: no usable videos")
-            for i, e in enumerate(entries):
-                e["split"] = splits[e["name"]]
-                e["id"] = i
-            n_frames = sum(e["n_frames"] for e in entries)
-            with atomic_output(out) as tmp:
-                g = create_group(tmp, {"videos": [{k: v for k, v in e.items() if k != "scratch"} for e in entries],
-                                       "sample_rate": audio_features.SAMPLE_RATE, "mfcc_rate": 100,
-                                       "crop_size": p["crop_size"], "crop_format": "I420"})
-                S, sh = p["crop_size"], p["shard_frames"]
-                arrays = {
-                    "crops": (create_timed(g, "crops", n_frames, (S * 3 // 2, S), "uint8", sh, p["chunk_frames"]),
-                              "crops", "first_frame", "n_frames"),
-                    "frame_time": (create_timed(g, "frame_time", n_frames, (), "float64", sh, sh), "time",
-                                   "first_frame", "n_frames"),
-                    "audio": (create_timed(g, "audio", sum(e["n_samples"] for e in entries), (), "int16",
-                                           160 * 100 * 60, 160 * 100 * 6), "audio", "first_sample", "n_samples"),
-                    "mfcc": (create_timed(g, "mfcc", sum(e["n_mfcc"] for e in entries), (28,), "float32",
-                                          100 * 60, 100 * 6), "mfcc", "first_mfcc", "n_mfcc"),
-                }
-                vid = np.concatenate([np.full(e["n_frames"], e["id"], np.int32) for e in entries])
-                create_timed(g, "video_id", n_frames, (), "int32", sh, sh)[:] = vid
-                jobs = []
-                for name, (arr, key, first, count) in arrays.items():
-                    shard = arr.shards[0]
-                    for a, b in shard_ranges(arr.shape[0], shard):
-                        jobs.append(dict(array=str(Path(tmp) / name), start=a, stop=b, key=key, first=first,
-                                         count=count, videos=[{k: e[k] for k in ("scratch", first, count)} for e in entries
-                                                              if e[first] < b and e[first] + e[count] > a]))
-                run_tasks(client, copy_block, jobs, "ingest: store", "shard")
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-    log.info("stored %d frames of %d videos (%d train, %d val) in %s", n_frames, len(entries),
-             sum(e["split"] == "train" for e in entries), sum(e["split"] == "val" for e in entries), out)
+    entries = []
+    for q in paths:
+        try:
+            entries.append(probe_video(q, p))
+        except BadInputError as exc:
+            if data["on_bad_input"] != "skip":
+                raise LipsynthError(f"{exc} (set data.on_bad_input: skip to leave such videos out)") from None
+            log.warning("skipping %s", exc)
+    if not entries:
+        raise LipsynthError(f"{data['videos']}: no usable videos")
+    S, sh = p["crop_size"], p["shard_frames"]
+    sh_audio, sh_mfcc = 16000 * p["shard_seconds"], 100 * p["shard_seconds"]
+    n_frames, n_samples, n_mfcc = layout(entries, sh, sh_audio, sh_mfcc)
+    for i, e in enumerate(entries):
+        e["id"], e["split"] = i, splits[e["name"]]
+    with atomic_output(out) as tmp, client_for(params["cluster"]) as client:
+        g = create_group(tmp)
+        create_timed(g, "crops", n_frames, (S * 3 // 2, S), "uint8", sh, p["chunk_frames"])
+        create_timed(g, "frame_time", n_frames, (), "float64", sh, sh, fill_value=float("nan"))
+        create_timed(g, "video_id", n_frames, (), "int32", sh, sh, fill_value=-1)
+        create_timed(g, "audio", n_samples, (), "int16", sh_audio, sh_audio // 10)
+        create_timed(g, "mfcc", n_mfcc, (28,), "float32", sh_mfcc, sh_mfcc // 10)
+        jobs = [dict(entry=e, params=p, out=str(tmp)) for e in entries]
+        results = run_tasks(client, ingest_video, jobs, "ingest", "frame", [e["cap_frames"] for e in entries])
+        for e, r in zip(entries, results):
+            if "error" in r:
+                if data["on_bad_input"] != "skip":
+                    raise LipsynthError(r["error"] + " (set data.on_bad_input: skip to leave such videos out)")
+                log.warning("skipping %s", r["error"])
+                e.update(n_frames=0, n_samples=0, n_mfcc=0, crop=[0.0, 0.0, 1.0], audio_offset=0.0, excluded=True)
+                continue
+            if r.pop("truncated"):
+                log.warning("%s: more frames than its header announced; kept the first %d", e["path"], r["n_frames"])
+            e.update(r)
+        g.attrs.update({"videos": entries, "sample_rate": audio_features.SAMPLE_RATE, "mfcc_rate": 100,
+                        "crop_size": S, "crop_format": "I420"})
+    kept = [e for e in entries if not e.get("excluded")]
+    if not kept:
+        raise LipsynthError(f"{data['videos']}: no usable videos")
+    log.info("stored %d frames of %d videos (%d train, %d val) in %s", sum(e["n_frames"] for e in kept), len(kept),
+             sum(e["split"] == "train" for e in kept), sum(e["split"] == "val" for e in kept), out)
     return entries
 
 

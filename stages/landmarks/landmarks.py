@@ -30,7 +30,8 @@ from pipeline import face
 from pipeline.errors import LipsynthError
 from pipeline.parallel import client_for, run_tasks
 from pipeline.runner import stage_main
-from pipeline.store import atomic_output, create_group, create_timed, open_group, shard_ranges, video_of_frames
+from pipeline.store import (atomic_output, create_group, create_timed, occupied_shards, open_group,
+                            video_of_frames, videos_in)
 
 log = logging.getLogger("lipsynth.landmarks")
 
@@ -141,18 +142,16 @@ def run(params: dict, ingest_path: str, out: str) -> list[dict]:
         create_timed(g, "confidence", n, (), "float32", shard, shard)
         create_timed(g, "valid", n, (), "bool", shard, shard, fill_value=False)
         create_timed(g, "detected", n, (), "bool", shard, shard, fill_value=False)
-        ranges = shard_ranges(n, shard)
+        ranges = occupied_shards(videos, n, shard)
         jobs = [dict(ingest=str(Path(ingest_path).absolute()), out=str(tmp), start=a, stop=b, params=p,
-                     crop_size=src.attrs["crop_size"], videos=[v for v in videos
-                                                               if v["first_frame"] < b and v["first_frame"] + v["n_frames"] > a])
-                for a, b in ranges]
+                     crop_size=src.attrs["crop_size"], videos=list(videos_in(videos, a, b))) for a, b in ranges]
         results = run_tasks(client, landmark_block, jobs, "landmarks", "frame", [b - a for a, b in ranges])
         counts: dict[str, int] = {}
         for r in results:
             for k, c in r.items():
                 counts[k] = counts.get(k, 0) + c
         for v in videos:
-            v["valid_fraction"] = counts.get(v["name"], 0) / v["n_frames"]
+            v["valid_fraction"] = counts.get(v["name"], 0) / max(v["n_frames"], 1)
             v["excluded"] = v["valid_fraction"] < p["min_valid_fraction"]
             if v["excluded"]:
                 msg = (f"{v['path']}: face tracked in only {100 * v['valid_fraction']:.1f}% of frames "
@@ -162,7 +161,8 @@ def run(params: dict, ingest_path: str, out: str) -> list[dict]:
                 log.warning("excluding %s", msg)
         g.attrs.update({"videos": videos, "coordinates": "source frame pixels"})
         total = sum(counts.values())
-        log.info("valid landmarks on %d of %d frames (%.2f%%)", total, n, 100 * total / max(n, 1))
+        real = sum(v["n_frames"] for v in videos)
+        log.info("valid landmarks on %d of %d frames (%.2f%%)", total, real, 100 * total / max(real, 1))
     return videos
 
 

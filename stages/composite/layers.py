@@ -1,0 +1,96 @@
+"""Jaw correction (§3.4.1) and the four compositing layers (§3.4.2), in the canonical texture.
+
+Layers, front to back: 1) the synthesized lower face above the chin, 2) the target's torso /
+shirt, 3) the synthesized neck below the chin, 4) the rest of the target frame. With two
+sources (synthesized texture, target frame) this is one alpha for the synthesized texture:
+a = M1 + (1 − M1)(1 − M2) M3. The chin is a spline through the jaw-contour landmarks.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+CHIN = list(range(2, 15))           # jaw-contour landmarks used for the chin spline
+
+
+def chin_spline(jaw_uv: np.ndarray, samples: int = 64) -> np.ndarray:
+    """Cubic spline through jaw points (k, 2) in texture pixels, parametrised by chord length → (samples, 2)."""
+    d = np.r_[0, np.cumsum(np.linalg.norm(np.diff(jaw_uv, axis=0), axis=1))]
+    keep = np.r_[True, np.diff(d) > 1e-6]
+    cs = CubicSpline(d[keep], jaw_uv[keep], axis=0)
+    return cs(np.linspace(0, d[-1], samples))
+
+
+def _fill(poly: np.ndarray, size: int) -> np.ndarray:
+    m = np.zeros((size, size), np.uint8)
+    cv2.fillPoly(m, [np.round(poly * 16).astype(np.int32)], 1, shift=4)
+    return m.astype(np.float32)
+
+
+def layer_masks(landmarks_uv: np.ndarray, size: int, feather: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mouth-region (above the chin) and neck (below it) masks, (T, T) float32 in [0, 1].
+
+    The mouth region is bounded by the chin spline and a line at the height of the nose tip
+    (landmark 30), so cheeks, mouth, chin are replaced and the eyes/nose never are; the neck
+    runs from the chin to the bottom of the texture between the jaw's lowest contour points.
+    """
+    spline = chin_spline(landmarks_uv[CHIN])
+    top = landmarks_uv[30, 1]
+    mouth_poly = np.vstack([spline, [[spline[-1, 0], top], [spline[0, 0], top]]])
+    mouth = _fill(mouth_poly, size)
+    low = spline[8:-8]                                   # the chin part of the jaw (its lower half)
+    neck_poly = np.vstack([low, [[low[-1, 0], size + 2], [low[0, 0], size + 2]]])
+    neck = _fill(neck_poly, size) * (1 - mouth)
+    k = max(1, int(2 * round(feather) + 1))
+    blur = lambda m: cv2.GaussianBlur(m, (k * 2 + 1, k * 2 + 1), feather)
+    return blur(mouth), blur(neck)
+
+
+def synth_alpha(mouth: np.ndarray, neck: np.ndarray, shirt: np.ndarray) -> np.ndarray:
+    """Alpha of the synthesized texture over the target: a = M1 + (1 − M1)(1 − M2) M3."""
+    return np.clip(mouth + (1 - mouth) * (1 - shirt) * neck, 0.0, 1.0)
+
+
+def jaw_band(landmarks_uv: np.ndarray, size: int, width: float) -> np.ndarray:
+    """Alpha map around the jawline (Fig. 7e): 1 on the chin spline, fading over ``width`` px."""
+    m = np.zeros((size, size), np.uint8)
+    cv2.polylines(m, [np.round(chin_spline(landmarks_uv[CHIN]) * 16).astype(np.int32)], False, 255,
+                  thickness=1, shift=4)
+    dist = cv2.distanceTransform(255 - m, cv2.DIST_L2, 3)
+    return np.exp(-0.5 * (dist / width) ** 2).astype(np.float32)
+
+
+def jaw_correction(synth_rgb: np.ndarray, target_rgb: np.ndarray, band: np.ndarray) -> np.ndarray:
+    """Warp the synthesized texture so its jawline meets the target's (§3.4.1, Fig. 7).
+
+    Dense optical flow (DIS) from the target texture to the synthesized one gives, for every
+    target pixel p, where its content sits in the synthesized texture (p + f(p)); the flow is
+    masked by the jaw band and the synthesized texture is resampled at p + band(p)·f(p).
+    """
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    g_t = cv2.cvtColor(target_rgb, cv2.COLOR_RGB2GRAY)
+    g_s = cv2.cvtColor(synth_rgb, cv2.COLOR_RGB2GRAY)
+    flow = dis.calc(g_t, g_s, None)
+    T = synth_rgb.shape[0]
+    gy, gx = np.mgrid[0:T, 0:T].astype(np.float32)
+    mx = gx + band * flow[..., 0]
+    my = gy + band * flow[..., 1]
+    return cv2.remap(synth_rgb, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def pyramid_blend(front: np.ndarray, back: np.ndarray, alpha: np.ndarray, levels: int = 5) -> np.ndarray:
+    """Laplacian-pyramid blend (Burt & Adelson 1983) of (h, w, 3) uint8 images with (h, w) alpha."""
+    h, w = alpha.shape
+    levels = max(1, min(levels, int(np.log2(max(min(h, w), 2))) - 2))
+    f, b, a = front.astype(np.float32), back.astype(np.float32), alpha.astype(np.float32)
+    gf, gb, ga = [f], [b], [a]
+    for _ in range(levels):
+        gf.append(cv2.pyrDown(gf[-1])); gb.append(cv2.pyrDown(gb[-1])); ga.append(cv2.pyrDown(ga[-1]))
+    out = ga[-1][..., None] * gf[-1] + (1 - ga[-1][..., None]) * gb[-1]
+    for lvl in range(levels - 1, -1, -1):
+        size = (gf[lvl].shape[1], gf[lvl].shape[0])
+        lf = gf[lvl] - cv2.pyrUp(gf[lvl + 1], dstsize=size)
+        lb = gb[lvl] - cv2.pyrUp(gb[lvl + 1], dstsize=size)
+        out = cv2.pyrUp(out, dstsize=size) + ga[lvl][..., None] * lf + (1 - ga[lvl][..., None]) * lb
+    return np.clip(out + 0.5, 0, 255).astype(np.uint8)

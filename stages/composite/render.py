@@ -1,0 +1,61 @@
+"""Render a frontal texture back into a frame at the frame's pose (paper 000 §3.4.2, last line).
+
+The inverse of the frontal warp: for each frame pixel near the face, intersect its viewing ray
+with the extended face surface (the same geometry the texture was frontalized with) to find the
+canonical point it sees, i.e. the texture pixel to sample. The ray intersection is solved on a
+grid 4× coarser than the frame (the mapping is smooth) and the map is upsampled.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from pipeline.geometry import project
+from stages.frontalize.warp import Surface, TextureWindow, frontal_landmarks
+
+
+def texture_footprint(points: np.ndarray, rvec, tvec, K: np.ndarray, frame_shape, margin: int = 4):
+    """Bounding box (x0, y0, x1, y1) in frame pixels of the projected texture, clipped to the frame."""
+    uv = project(points.reshape(-1, 3), rvec, tvec, K)
+    h, w = frame_shape[:2]
+    x0, y0 = np.floor(uv.min(0)).astype(int) - margin
+    x1, y1 = np.ceil(uv.max(0)).astype(int) + margin
+    return max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+
+
+def inverse_map(box, surface: Surface, window: TextureWindow, rvec, tvec, K: np.ndarray,
+                step: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Texture coordinates seen by every pixel of ``box`` = (x0, y0, x1, y1).
+
+    Returns
+    -------
+    map_u, map_v : (y1 − y0, x1 − x0) float32 texture pixel coordinates (for cv2.remap).
+    """
+    x0, y0, x1, y1 = box
+    xs = np.arange(x0, x1 + step, step, dtype=np.float64)
+    ys = np.arange(y0, y1 + step, step, dtype=np.float64)
+    gx, gy = np.meshgrid(xs, ys)
+    pix = np.column_stack([gx.ravel(), gy.ravel()])
+    # start from the inverse of the affine map texture-plane → frame fitted on the window corners
+    c = window.size - 1
+    corners_uv = np.array([[0, 0], [c, 0], [0, c], [c, c]], np.float64)
+    corners_mm = window.to_mm(corners_uv)
+    corners_px = project(np.column_stack([corners_mm, surface.z(corners_mm[:, 0], corners_mm[:, 1])]), rvec, tvec, K)
+    A, _ = cv2.estimateAffine2D(corners_px, corners_mm)
+    start = pix @ A[:, :2].T + A[:, 2]
+    xy = frontal_landmarks(pix, start, surface, rvec, tvec, K, iterations=4)
+    uv = window.to_pixels(xy).astype(np.float32).reshape(len(ys), len(xs), 2)
+    full = cv2.resize(uv, ((len(xs) - 1) * step + 1, (len(ys) - 1) * step + 1), interpolation=cv2.INTER_LINEAR)
+    full = full[:y1 - y0, :x1 - x0]
+    return np.ascontiguousarray(full[..., 0]), np.ascontiguousarray(full[..., 1])
+
+
+def render(texture: np.ndarray, map_u: np.ndarray, map_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sample ``texture`` (T, T, C) at the maps; also return coverage (1 inside the texture, 0 outside).
+
+    Returns (h, w, C) image and (h, w) float32 coverage with a 2-pixel soft edge.
+    """
+    T = texture.shape[0]
+    img = cv2.remap(texture, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    edge = np.minimum.reduce([map_u, map_v, T - 1 - map_u, T - 1 - map_v])
+    return img, np.clip(edge / 2.0, 0.0, 1.0).astype(np.float32)
