@@ -160,37 +160,94 @@ def align_audio(samples: np.ndarray, audio_start: float, video_start: float, dur
     return out
 
 
+class FrameReader:
+    """Random access to the frames of a video, cheap when indices mostly increase.
+
+    ``get(j)`` decodes forward from the current position; a backward jump reopens the file.
+    Frames are (H, W, 3) uint8 RGB.
+    """
+
+    def __init__(self, path):
+        self.path = str(path)
+        self._it, self._pos, self._last = None, -1, None
+
+    def _restart(self):
+        self._it = (img for _, img in iter_frames(self.path))
+        self._pos, self._last = -1, None
+
+    def get(self, j: int) -> np.ndarray:
+        if self._it is None or j < self._pos:
+            self._restart()
+        while self._pos < j:
+            try:
+                self._last = next(self._it)
+            except StopIteration:
+                raise BadInputError(self.path, f"has no frame {j} (only {self._pos + 1})") from None
+            self._pos += 1
+        return self._last
+
+
+def _rate(fps: float) -> Fraction:
+    return Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-3 else Fraction(fps).limit_denominator(1001)
+
+
+class VideoWriter:
+    """Stream RGB frames into an H.264 (yuv420p) MP4, then add mono AAC audio; memory stays flat.
+
+    Use as a context manager; on an exception the partial file is removed.
+    """
+
+    def __init__(self, path, fps: float, crf: int = 18, preset: str = "veryfast",
+                 audio: np.ndarray | None = None, sample_rate: int = 48000):
+        self.path = str(path)
+        self.c = av.open(self.path, "w")
+        self.v = self.c.add_stream("libx264", rate=_rate(fps), options={"crf": str(crf), "preset": preset})
+        self.v.pix_fmt = "yuv420p"
+        self.a = None
+        if audio is not None:
+            self.a = self.c.add_stream("aac", rate=sample_rate)
+            self.a.layout = "mono"
+        self.audio, self.sample_rate, self.n = audio, sample_rate, 0
+
+    def write(self, rgb: np.ndarray) -> None:
+        if self.n == 0:
+            h, w = rgb.shape[:2]
+            self.v.width, self.v.height = w - w % 2, h - h % 2
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb[:self.v.height, :self.v.width]), format="rgb24")
+        for p in self.v.encode(frame):
+            self.c.mux(p)
+        self.n += 1
+
+    def close(self) -> None:
+        for p in self.v.encode():
+            self.c.mux(p)
+        if self.a is not None:
+            pcm = np.clip(self.audio, -1, 1).astype(np.float32).reshape(1, -1)
+            for i in range(0, pcm.shape[1], 1024):
+                fr = av.AudioFrame.from_ndarray(np.ascontiguousarray(pcm[:, i:i + 1024]), format="flt", layout="mono")
+                fr.sample_rate, fr.pts = self.sample_rate, i
+                for p in self.a.encode(fr):
+                    self.c.mux(p)
+            for p in self.a.encode():
+                self.c.mux(p)
+        self.c.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, *_):
+        if exc_type is None:
+            self.close()
+        else:
+            try:
+                self.c.close()
+            finally:
+                Path(self.path).unlink(missing_ok=True)
+
+
 def write_video(path, frames, fps: float, audio: np.ndarray | None = None, sample_rate: int = 16000,
                 crf: int = 18) -> None:
-    """Encode (T, H, W, 3) uint8 RGB ``frames`` as H.264/yuv420p with optional AAC mono audio.
-
-    ``fps`` may be fractional (29.97 is written as 30000/1001).
-    """
-    rate = Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-3 else Fraction(fps).limit_denominator(1001)
-    with av.open(str(path), "w") as c:
-        v = c.add_stream("libx264", rate=rate, options={"crf": str(crf), "preset": "veryfast"})
-        first = True
-        a = None
-        if audio is not None:
-            a = c.add_stream("aac", rate=sample_rate)
-            a.layout = "mono"
+    """Encode an iterable of (H, W, 3) uint8 RGB frames as H.264/yuv420p with optional mono AAC audio."""
+    with VideoWriter(path, fps, crf, audio=audio, sample_rate=sample_rate) as w:
         for img in frames:
-            if first:
-                v.height, v.width = img.shape[:2]
-                v.pix_fmt = "yuv420p"
-                first = False
-            for p in v.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")):
-                c.mux(p)
-        for p in v.encode():
-            c.mux(p)
-        if a is not None:
-            pcm = np.clip(audio, -1, 1).astype(np.float32).reshape(1, -1)
-            step = 1024
-            for i in range(0, pcm.shape[1], step):
-                fr = av.AudioFrame.from_ndarray(np.ascontiguousarray(pcm[:, i:i + step]), format="flt", layout="mono")
-                fr.sample_rate = sample_rate
-                fr.pts = i
-                for p in a.encode(fr):
-                    c.mux(p)
-            for p in a.encode():
-                c.mux(p)
+            w.write(img)

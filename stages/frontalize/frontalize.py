@@ -176,7 +176,8 @@ def run(params: dict, ingest_path: str, landmarks_path: str, out: str) -> dict:
                       out=str(tmp), params=p, surface=(surface.x0, surface.y0, surface.step),
                       window=dict(x0=win.x0, y0=win.y0, mm_per_px=win.mm_per_px, size=win.size))
         jobs = [dict(common, start=a, stop=b, videos=list(videos_in(videos, a, b))) for a, b in ranges]
-        ok = sum(run_tasks(client, frontalize_block, jobs, "frontalize", "frame", [b - a for a, b in ranges]))
+        frames = [sum(hi - lo for _, lo, hi in video_of_frames(videos, a, b)) for a, b in ranges]
+        ok = sum(run_tasks(client, frontalize_block, jobs, "frontalize", "frame", frames))
         g.attrs.update(dict(videos=videos, model=report, texture_window=common["window"],
                             grid=dict(x0=surface.x0, y0=surface.y0, step=surface.step), focal_factor=p["focal_factor"],
                             landmark_units="texture pixels", pose_units="rvec rad, tvec mm (model to camera)"))

@@ -41,7 +41,7 @@ from pipeline import audio_features, face, media
 from pipeline.errors import BadInputError, LipsynthError, ParameterError
 from pipeline.parallel import client_for, run_tasks
 from pipeline.runner import stage_main
-from pipeline.store import atomic_output, create_group, create_timed, shard_ranges
+from pipeline.store import atomic_output, create_group, create_timed
 
 log = logging.getLogger("lipsynth.ingest")
 VIDEO_EXTS = {".mp4", ".mov", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".m4v"}

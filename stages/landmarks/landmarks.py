@@ -145,7 +145,8 @@ def run(params: dict, ingest_path: str, out: str) -> list[dict]:
         ranges = occupied_shards(videos, n, shard)
         jobs = [dict(ingest=str(Path(ingest_path).absolute()), out=str(tmp), start=a, stop=b, params=p,
                      crop_size=src.attrs["crop_size"], videos=list(videos_in(videos, a, b))) for a, b in ranges]
-        results = run_tasks(client, landmark_block, jobs, "landmarks", "frame", [b - a for a, b in ranges])
+        frames = [sum(hi - lo for _, lo, hi in video_of_frames(videos, a, b)) for a, b in ranges]
+        results = run_tasks(client, landmark_block, jobs, "landmarks", "frame", frames)
         counts: dict[str, int] = {}
         for r in results:
             for k, c in r.items():

@@ -1,0 +1,173 @@
+"""composite — put the synthesized lower face into the target video (paper 000 §3.4).
+
+For every output frame i showing target frame j (after re-timing): jaw correction of the
+synthesized texture against the target's frontal texture (§3.4.1), the four layers as one alpha
+in the canonical texture (``layers``), both rendered back into frame j through its pose and the
+extended face surface (``render``), a Laplacian-pyramid blend over the target frame, and
+H.264/yuv420p encoding at the target's frame rate with the source audio as AAC.
+
+Input ``store/synthesize.zarr`` (see stages/synthesize); output ``synthesize.out_video`` (MP4),
+replaced atomically, plus an optional side-by-side diagnostic video (target | result | landmarks).
+
+Run: ``python -m stages.composite.composite``.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from pipeline import media
+from pipeline.geometry import intrinsics
+from pipeline.runner import stage_main
+from pipeline.store import i420_to_rgb, open_group
+from stages.composite.layers import jaw_band, jaw_correction, layer_masks, pyramid_blend, synth_alpha
+from stages.composite.render import inverse_map, render, texture_footprint
+from stages.frontalize.warp import Surface, TextureWindow
+
+log = logging.getLogger("lipsynth.composite")
+
+
+class Target:
+    """The target video's frames and per-frame geometry, from the stores it was preprocessed into."""
+
+    def __init__(self, synth, params: dict):
+        a = synth.attrs
+        self.fr = open_group(a["frontalize_store"])
+        self.video = a["target"]
+        self.reader = media.FrameReader(self.video["path"])
+        self.K = intrinsics(self.video["width"], self.video["height"], self.fr.attrs["focal_factor"])
+        g = self.fr.attrs["grid"]
+        self.surface = Surface(np.asarray(self.fr["model/depth"][...], np.float64), g["x0"], g["y0"], g["step"])
+        self.window = TextureWindow(**self.fr.attrs["texture_window"])
+        self.points = np.asarray(self.fr["model/texture_points"][...], np.float64)
+        f0, n = self.video["first_frame"], self.video["n_frames"]
+        self.pose = np.asarray(self.fr["pose"][f0:f0 + n], np.float64)
+        self.pose_ok = np.asarray(self.fr["pose_valid"][f0:f0 + n])
+        self.flm = np.asarray(self.fr["frontal_landmarks"][f0:f0 + n], np.float64)
+        self.f0 = f0
+
+    def texture(self, j: int) -> np.ndarray:
+        return i420_to_rgb(self.fr["texture"][self.f0 + j])
+
+    def clothing(self, j: int) -> np.ndarray:
+        return np.asarray(self.fr["clothing_mask"][self.f0 + j], np.float32)
+
+
+def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Target, p: dict,
+                    timing: dict | None = None) -> np.ndarray:
+    """One output frame: target frame j (H, W, 3) with the synthesized texture (T, T, 3) blended in."""
+    t0 = time.perf_counter()
+    if not tgt.pose_ok[j]:
+        return frame                                   # no face geometry for this frame: keep the target
+    lm = tgt.flm[j]
+    T = synth_rgb.shape[0]
+    target_tex = tgt.texture(j)
+    if p["jaw_correction"]:
+        synth_rgb = jaw_correction(synth_rgb, target_tex, jaw_band(lm, T, p["jaw_band_px"]))
+    t1 = time.perf_counter()
+    mouth, neck = layer_masks(lm, T, p["feather_px"])
+    shirt = cv2.GaussianBlur(tgt.clothing(j), (0, 0), 1.5)
+    alpha = synth_alpha(mouth, neck, shirt)
+    rvec, tvec = tgt.pose[j, :3], tgt.pose[j, 3:]
+    x0, y0, x1, y1 = texture_footprint(tgt.points, rvec, tvec, tgt.K, frame.shape)
+    if x1 <= x0 or y1 <= y0:
+        return frame
+    mu, mv = inverse_map((x0, y0, x1, y1), tgt.surface, tgt.window, rvec, tvec, tgt.K)
+    layer = np.dstack([synth_rgb, np.round(alpha * 255).astype(np.uint8)])
+    rendered, cover = render(layer, mu, mv)
+    t2 = time.perf_counter()
+    a = rendered[..., 3].astype(np.float32) / 255 * cover
+    out = frame.copy()
+    out[y0:y1, x0:x1] = pyramid_blend(rendered[..., :3], frame[y0:y1, x0:x1], a, p["pyramid_levels"])
+    if timing is not None:
+        t3 = time.perf_counter()
+        for k, dt in (("flow", t1 - t0), ("render_back", t2 - t1), ("blend", t3 - t2)):
+            timing[k] = timing.get(k, 0.0) + dt
+    return out
+
+
+def diagnostic(target: np.ndarray, result: np.ndarray, lip_uv: np.ndarray, T: int) -> np.ndarray:
+    """Side-by-side (target | result | predicted lip landmarks on a canvas), same height."""
+    h = target.shape[0]
+    canvas = np.full((h, h, 3), 255, np.uint8)
+    s = h / T
+    for k, (u, v) in enumerate(lip_uv):
+        cv2.circle(canvas, (int(u * s), int(v * s)), max(2, h // 100), (200, 30, 30), -1)
+    return np.hstack([target, result, canvas])
+
+
+def run(params: dict, synth_path: str, out_video: str) -> dict:
+    p = params["composite"]
+    synth = open_group(synth_path)
+    tgt = Target(synth, params)
+    mapping = np.asarray(synth["target_frame"][...])
+    lips = np.asarray(synth["lip_points"][...])
+    audio, sr = media.read_audio(synth.attrs["audio"], p["audio_rate"])
+    audio = audio[:int(round(len(mapping) / tgt.video["fps"] * sr))]
+    out = Path(out_video)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}.mp4")
+    diag = out.with_name(out.stem + ".diagnostic.mp4") if p["diagnostic"] else None
+    diag_tmp = diag.with_name(f".{diag.name}.tmp-{os.getpid()}.mp4") if diag else None
+    timing: dict = {}
+    t_start = time.perf_counter()
+    try:
+        with media.VideoWriter(tmp, tgt.video["fps"], p["crf"], p["preset"], audio, sr) as w, \
+                (media.VideoWriter(diag_tmp, tgt.video["fps"], p["crf"], p["preset"], audio, sr)
+                 if diag else _Null()) as dw:
+            for i in tqdm(range(len(mapping)), desc="composite", unit="frame", dynamic_ncols=True):
+                j = int(mapping[i])
+                t0 = time.perf_counter()
+                frame = background_frame(synth, tgt, i, j)
+                timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
+                result = composite_frame(frame, np.asarray(synth["texture"][i]), j, tgt, p, timing)
+                t0 = time.perf_counter()
+                w.write(result)
+                if diag:
+                    dw.write(diagnostic(frame, result, lips[i], synth["texture"].shape[1]))
+                timing["encode"] = timing.get("encode", 0.0) + time.perf_counter() - t0
+        os.replace(tmp, out)
+        if diag:
+            os.replace(diag_tmp, diag)
+    finally:
+        for t in (tmp, diag_tmp):
+            if t is not None:
+                Path(t).unlink(missing_ok=True)
+    total = time.perf_counter() - t_start
+    log.info("wrote %s: %d frames at %.3f fps in %.1f s (%.1f frames/s)", out, len(mapping), tgt.video["fps"],
+             total, len(mapping) / total)
+    return {k: v / len(mapping) * 1000 for k, v in timing.items()}
+
+
+class _Null:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def write(self, _):
+        pass
+
+
+def background_frame(synth, tgt: Target, i: int, j: int) -> np.ndarray:
+    """Target frame j; a repeated frame (re-timing) is replaced by its flow half-way interpolation."""
+    if bool(synth["repeated"][i]) and j + 1 < tgt.video["n_frames"]:
+        from stages.synthesize.retime import halfway_frame
+        return halfway_frame(tgt.reader.get(j).copy(), tgt.reader.get(j + 1))
+    return tgt.reader.get(j)
+
+
+def main(argv=None) -> int:
+    return stage_main("lipsynth composite", __doc__,
+                      lambda p: run(p, p["synthesize"]["out"], p["composite"]["out"]), argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,183 @@
+"""synthesize — new audio → lower-face textures timed to a target video (paper 000 §3.2–3.3).
+
+1. Mouth shapes: the trained model (``synthesize.model``) turns the audio into 18 lip points
+   per output frame at the target's frame rate (``stages.train.predict``); a model trained on
+   another PCA basis than the store's is refused.
+2. Re-timing (§3.3, ``retime``): speech flags of the audio, motion speed + blinks of the target,
+   the dynamic programme maps output frames to target frames (a target shorter than half the
+   audio is first extended by ping-pong playback). ``synthesize.retime: false`` keeps the
+   target's own timing (for evaluation against ground truth).
+3. Texture (§3.2, ``texture``): per output frame, the n frames of the candidate pool nearest in
+   mouth shape, σ by binary search so they carry α of the weight, weighted median, teeth proxy
+   (upper/lower proxy frames picked automatically unless given) and unsharp masking.
+
+The candidate pool is the target video's usable frames; when the target has fewer than
+``pool_min`` of them, training frames of the corpus (same speaker) are added, up to
+``pool_max`` (the paper's targets are minutes long; a 3 s clip alone cannot cover all shapes).
+
+Store ``store/synthesize.zarr``: texture (N, T, T, 3) uint8 RGB, target_frame (N,) int32 (frame
+of the target video shown at output frame i), repeated (N,) bool, lip_points (N, 18, 2)
+predicted, candidate_landmarks (N, 68, 2) weight-averaged landmarks of the candidates, sigma
+(N,); attrs: target (its index entry), frontalize_store, audio, fps, timing (ms/frame).
+
+Run: ``python -m stages.synthesize.synthesize`` (reads ``synthesize``, ``train`` paths).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from pipeline.errors import LipsynthError
+from pipeline.runner import stage_main
+from pipeline.store import atomic_output, create_group, i420_to_rgb, open_group
+from stages.pca.pca import LIP_POINTS
+from stages.synthesize import retime as rt
+from stages.synthesize import texture as tx
+from stages.train.predict import load_audio, predict_mouth
+
+log = logging.getLogger("lipsynth.synthesize")
+
+
+def find_video(videos: list[dict], target: str) -> dict | None:
+    """The index entry whose name or path is ``target``."""
+    for v in videos:
+        if v["name"] == target or Path(v["path"]) == Path(target).absolute():
+            return v
+    return None
+
+
+def usable(fr, lmg, v: dict) -> np.ndarray:
+    """Local indices of the frames of video ``v`` with a valid pose and landmarks."""
+    sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])
+    return np.flatnonzero(np.asarray(fr["pose_valid"][sl]) & np.asarray(lmg["valid"][sl]))
+
+
+def candidate_pool(stores: dict, target: dict, p: dict) -> np.ndarray:
+    """Global frame indices (into the target's stores) of the candidate pool; target frames first."""
+    fr, lmg = stores["frontalize"], stores["landmarks"]
+    own = target["first_frame"] + usable(fr, lmg, target)
+    if len(own) >= p["pool_min"]:
+        return own
+    extra = np.concatenate([v["first_frame"] + usable(fr, lmg, v) for v in fr.attrs["videos"]
+                            if v["split"] == "train" and v["n_frames"] and not v.get("excluded")
+                            and v["name"] != target["name"]] or [np.zeros(0, int)])
+    room = p["pool_max"] - len(own)
+    if len(extra) > room:
+        extra = extra[np.unique(np.linspace(0, len(extra) - 1, room).round().astype(int))]
+    log.info("target has %d usable frames (< pool_min %d): adding %d training frames of the corpus",
+             len(own), p["pool_min"], len(extra))
+    return np.concatenate([own, extra])
+
+
+def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray, fps: float, p: dict):
+    """Target frame per output frame (N,) and the repeated flags (§3.3)."""
+    M = len(target_landmarks)
+    if not p["retime"]:
+        order = np.arange(M) if n_out <= M else rt.extend_by_ping_pong(M, n_out)
+        mapping = order[:n_out] if len(order) >= n_out else np.resize(order, n_out)
+        return mapping, np.zeros(n_out, bool)
+    V = rt.motion_speed(target_landmarks) + p["alpha_b"] * rt.blink_flags(target_landmarks, p["blink_threshold"])
+    A = rt.speech_flags(samples, 16000, fps, n_out, p["speech_threshold_db"])
+    order = np.arange(M)
+    if n_out > 2 * M:
+        order = rt.extend_by_ping_pong(M, n_out)
+        log.info("target (%d frames) is shorter than half the audio (%d frames): extended to %d frames by "
+                 "ping-pong playback", M, n_out, len(order))
+    mapping = order[rt.retime(A, V[order], p["alpha_s"], p["alpha_u"])]
+    repeated = np.r_[False, mapping[1:] == mapping[:-1]]
+    log.info("re-timing: %d output frames over %d target frames, %d repeated, speech in %.0f%% of the audio",
+             n_out, M, int(repeated.sum()), 100 * A.mean())
+    return mapping, repeated
+
+
+def load_stores(params: dict, target: str) -> tuple[dict, dict]:
+    """The stores that hold ``target`` (a corpus video name or path) and its index entry."""
+    stores = {k: open_group(params[k]["out"]) for k in ("ingest", "landmarks", "frontalize", "pca")}
+    stores["frontalize_path"] = str(Path(params["frontalize"]["out"]).absolute())
+    entry = find_video(stores["frontalize"].attrs["videos"], target)
+    if entry is None:
+        raise LipsynthError(f"synthesize.target={target!r}: not a video of the corpus in {params['frontalize']['out']} "
+                            "(use `lipsynth speak` for any video file)")
+    return stores, entry
+
+
+def run(params: dict, out: str, stores: dict | None = None, entry: dict | None = None) -> dict:
+    p = params["synthesize"]
+    if stores is None:
+        stores, entry = load_stores(params, p["target"])
+    fr, lmg = stores["frontalize"], stores["landmarks"]
+    if entry.get("excluded") or not len(usable(fr, lmg, entry)) or \
+            len(usable(fr, lmg, entry)) < p["min_target_fraction"] * entry["n_frames"]:
+        raise LipsynthError(f"{entry['path']}: target has a tracked face in only {len(usable(fr, lmg, entry))} of "
+                            f"{entry['n_frames']} frames (synthesize.min_target_fraction={p['min_target_fraction']})")
+    timing: dict = {}
+    t0 = time.perf_counter()
+    samples = load_audio(p["audio"])
+    mouth = predict_mouth(samples, p["model"], entry["fps"], device=p["device"])
+    if "pca" in stores and mouth["pca_fingerprint"] != stores["pca"].attrs["fingerprint"]:
+        log.warning("model PCA basis %s differs from the store's %s: shapes are compared in canonical pixels",
+                    mouth["pca_fingerprint"], stores["pca"].attrs["fingerprint"])
+    lips = mouth["lip_points"].astype(np.float64)
+    n_out = len(lips)
+    timing["prediction"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sl = slice(entry["first_frame"], entry["first_frame"] + entry["n_frames"])
+    target_lm = np.asarray(lmg["landmarks"][sl], np.float64)
+    target_lm[~np.asarray(lmg["valid"][sl])] = np.nan
+    mapping, repeated = output_timing(samples, n_out, target_lm, entry["fps"], p)
+    timing["retiming"] = time.perf_counter() - t0
+    pool = candidate_pool(stores, entry, p)
+    flm = np.asarray(fr["frontal_landmarks"].get_orthogonal_selection((pool,)), np.float64)
+    pool_tex = np.stack([i420_to_rgb(t) for t in fr["texture"].get_orthogonal_selection((pool,))])
+    shapes = flm[:, LIP_POINTS]
+    up, lo = p["teeth_upper"], p["teeth_lower"]
+    to_pool = lambda j: None if j is None else int(np.flatnonzero(pool == entry["first_frame"] + j)[0])
+    upper, lower = tx.pick_teeth_proxies(pool_tex, flm, np.ones(len(pool), bool), upper=to_pool(up), lower=to_pool(lo))
+    proxies = tx.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower)
+    log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
+             " (given)" if up is not None or lo is not None else " (automatic)")
+    T = pool_tex.shape[1]
+    t0 = time.perf_counter()
+
+    def one(i):
+        rgb, info = tx.synthesize_texture(lips[i], shapes, lambda idx: pool_tex[idx], flm, p["n"], p["alpha"], proxies)
+        return rgb, info["landmarks"], info["sigma"]
+
+    with atomic_output(out) as tmp:
+        g = create_group(tmp)
+        tex = g.create_array("texture", shape=(n_out, T, T, 3), dtype="uint8", chunks=(8, T, T, 3),
+                             shards=(256, T, T, 3))
+        cand = np.zeros((n_out, 68, 2), np.float32)
+        sig = np.zeros(n_out, np.float32)
+        with ThreadPoolExecutor(p["threads"]) as ex:
+            for a in tqdm(range(0, n_out, 256), desc="synthesize", unit="block", dynamic_ncols=True):
+                res = list(ex.map(one, range(a, min(a + 256, n_out))))
+                tex[a:a + len(res)] = np.stack([r[0] for r in res])
+                cand[a:a + len(res)] = [r[1] for r in res]
+                sig[a:a + len(res)] = [r[2] for r in res]
+        timing["texture"] = time.perf_counter() - t0
+        g.create_array("target_frame", data=mapping.astype(np.int32))
+        g.create_array("repeated", data=repeated)
+        g.create_array("lip_points", data=lips.astype(np.float32))
+        g.create_array("candidate_landmarks", data=cand)
+        g.create_array("sigma", data=sig)
+        ms = {k: 1000 * v / n_out for k, v in timing.items()}
+        g.attrs.update(dict(target=entry, frontalize_store=stores["frontalize_path"], audio=str(Path(p["audio"]).absolute()), fps=entry["fps"], n_frames=n_out,
+                            pool_size=int(len(pool)), teeth_proxies=[int(pool[upper]), int(pool[lower])],
+                            timing_ms_per_frame=ms))
+    log.info("synthesized %d textures (%.1f ms/frame: %s)", n_out, sum(ms.values()),
+             ", ".join(f"{k} {v:.1f}" for k, v in ms.items()))
+    return ms
+
+
+def main(argv=None) -> int:
+    return stage_main("lipsynth synthesize", __doc__, lambda p: run(p, p["synthesize"]["out"]), argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
