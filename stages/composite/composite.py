@@ -124,7 +124,7 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
             for i in tqdm(range(len(mapping)), desc="composite", unit="frame", dynamic_ncols=True):
                 j = int(mapping[i])
                 t0 = time.perf_counter()
-                frame = background_frame(synth, tgt, i, j)
+                frame = background_frame(synth, tgt, mapping, i)
                 timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
                 result = composite_frame(frame, np.asarray(synth["texture"][i]), j, tgt, p, timing)
                 t0 = time.perf_counter()
@@ -156,11 +156,14 @@ class _Null:
         pass
 
 
-def background_frame(synth, tgt: Target, i: int, j: int) -> np.ndarray:
-    """Target frame j; a repeated frame (re-timing) is replaced by its flow half-way interpolation."""
-    if bool(synth["repeated"][i]) and j + 1 < tgt.video["n_frames"]:
-        from stages.synthesize.retime import halfway_frame
-        return halfway_frame(tgt.reader.get(j).copy(), tgt.reader.get(j + 1))
+def background_frame(synth, tgt: Target, mapping: np.ndarray, i: int) -> np.ndarray:
+    """The target frame shown at output frame i. A repeated frame (re-timing) is replaced by the
+    flow half-way interpolation between its neighbours (§3.3, last paragraph)."""
+    from stages.synthesize.retime import halfway_frame
+    j = int(mapping[i])
+    if bool(synth["repeated"][i]) and i + 1 < len(mapping) and int(mapping[i + 1]) != j:
+        prev = tgt.reader.get(j).copy()
+        return halfway_frame(prev, tgt.reader.get(int(mapping[i + 1])))
     return tgt.reader.get(j)
 
 
