@@ -17,6 +17,9 @@ COMMANDS = {
     "train": ("stages.train.train", "train the audio → mouth-shape model (train.model) → models/<model>"),
     "delay-sweep": ("stages.train.sweep", "validation loss of the LSTM for several target delays → plots/"),
     "predict-mouth": ("stages.train.predict", "per-frame mouth shapes for an audio file from a model folder"),
+    "synthesize": ("stages.synthesize.synthesize", "new audio → re-timed lower-face textures → store/synthesize.zarr"),
+    "composite": ("stages.composite.composite", "synthesized textures into the target video → outputs/…/result.mp4"),
+    "speak": ("pipeline.speak", "audio + any video of the speaker → lip-synced MP4 (preprocesses the target)"),
 }
 
 

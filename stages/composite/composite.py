@@ -6,13 +6,15 @@ in the canonical texture (``layers``), both rendered back into frame j through i
 extended face surface (``render``), a Laplacian-pyramid blend over the target frame, and
 H.264/yuv420p encoding at the target's frame rate with the source audio as AAC.
 
-Input ``store/synthesize.zarr`` (see stages/synthesize); output ``synthesize.out_video`` (MP4),
-replaced atomically, plus an optional side-by-side diagnostic video (target | result | landmarks).
+Input ``store/synthesize.zarr`` (see stages/synthesize); output ``composite.out_dir``/result.mp4,
+replaced atomically, plus an optional side-by-side diagnostic video result.diagnostic.mp4
+(target | result | synthesized texture with the predicted lip points).
 
 Run: ``python -m stages.composite.composite``.
 """
 from __future__ import annotations
 
+import json
 import logging
 import os
 import time
@@ -52,11 +54,22 @@ class Target:
         self.flm = np.asarray(self.fr["frontal_landmarks"][f0:f0 + n], np.float64)
         self.f0 = f0
 
+    BLOCK = 64                                          # target frames read from the store at once
+
+    def _block(self, j: int) -> tuple[np.ndarray, np.ndarray]:
+        b = j // self.BLOCK
+        if getattr(self, "_cached", (None,))[0] != b:
+            sl = slice(self.f0 + b * self.BLOCK, self.f0 + min((b + 1) * self.BLOCK, self.video["n_frames"]))
+            self._cached = (b, np.asarray(self.fr["texture"][sl]), np.asarray(self.fr["clothing_mask"][sl]))
+        return self._cached[1][j % self.BLOCK], self._cached[2][j % self.BLOCK]
+
     def texture(self, j: int) -> np.ndarray:
-        return i420_to_rgb(self.fr["texture"][self.f0 + j])
+        """Frontal texture (T, T, 3) uint8 RGB of target frame j."""
+        return i420_to_rgb(self._block(j)[0])
 
     def clothing(self, j: int) -> np.ndarray:
-        return np.asarray(self.fr["clothing_mask"][self.f0 + j], np.float32)
+        """Clothing mask (T, T) float32 {0, 1} of target frame j."""
+        return self._block(j)[1].astype(np.float32)
 
 
 def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Target, p: dict,
@@ -75,7 +88,8 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     shirt = cv2.GaussianBlur(tgt.clothing(j), (0, 0), 1.5)
     alpha = synth_alpha(mouth, neck, shirt)
     rvec, tvec = tgt.pose[j, :3], tgt.pose[j, 3:]
-    x0, y0, x1, y1 = texture_footprint(tgt.points, rvec, tvec, tgt.K, frame.shape)
+    # the blend box: the texture's footprint plus the reach of the coarsest pyramid level
+    x0, y0, x1, y1 = texture_footprint(tgt.points, rvec, tvec, tgt.K, frame.shape, margin=2 ** p["pyramid_levels"])
     if x1 <= x0 or y1 <= y0:
         return frame
     mu, mv = inverse_map((x0, y0, x1, y1), tgt.surface, tgt.window, rvec, tvec, tgt.K)
@@ -83,8 +97,13 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     rendered, cover = render(layer, mu, mv)
     t2 = time.perf_counter()
     a = rendered[..., 3].astype(np.float32) / 255 * cover
+    back = frame[y0:y1, x0:x1]
+    # outside the layer's support the front image is the target itself, so the pyramid's coarse
+    # levels blend the synthesized face with the target only where they actually differ
+    support = cv2.dilate((a > 1e-3).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    front = np.where(support[..., None], rendered[..., :3], back)
     out = frame.copy()
-    out[y0:y1, x0:x1] = pyramid_blend(rendered[..., :3], frame[y0:y1, x0:x1], a, p["pyramid_levels"])
+    out[y0:y1, x0:x1] = pyramid_blend(front, back, a, p["pyramid_levels"])
     if timing is not None:
         t3 = time.perf_counter()
         for k, dt in (("flow", t1 - t0), ("render_back", t2 - t1), ("blend", t3 - t2)):
@@ -92,14 +111,18 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     return out
 
 
-def diagnostic(target: np.ndarray, result: np.ndarray, lip_uv: np.ndarray, T: int) -> np.ndarray:
-    """Side-by-side (target | result | predicted lip landmarks on a canvas), same height."""
+def diagnostic(target: np.ndarray, result: np.ndarray, texture: np.ndarray, lip_uv: np.ndarray) -> np.ndarray:
+    """Side-by-side (target | result | synthesized texture with the predicted lip points), same height.
+
+    ``texture`` is the (T, T, 3) synthesized texture, ``lip_uv`` (18, 2) the predicted lip points
+    in its pixels; the texture panel is scaled to the frame height.
+    """
     h = target.shape[0]
-    canvas = np.full((h, h, 3), 255, np.uint8)
-    s = h / T
-    for k, (u, v) in enumerate(lip_uv):
-        cv2.circle(canvas, (int(u * s), int(v * s)), max(2, h // 100), (200, 30, 30), -1)
-    return np.hstack([target, result, canvas])
+    s = h / texture.shape[0]
+    panel = cv2.resize(texture, (h, h), interpolation=cv2.INTER_LINEAR)
+    for u, v in lip_uv:
+        cv2.circle(panel, (int(round(u * s)), int(round(v * s))), max(2, h // 150), (255, 40, 40), -1, cv2.LINE_AA)
+    return np.hstack([target, result, panel])
 
 
 def run(params: dict, synth_path: str, out_video: str) -> dict:
@@ -108,7 +131,8 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
     tgt = Target(synth, params)
     mapping = np.asarray(synth["target_frame"][...])
     lips = np.asarray(synth["lip_points"][...])
-    audio, sr = media.read_audio(synth.attrs["audio"], p["audio_rate"])
+    sr = int(p["audio_rate"])
+    audio, _ = media.read_audio(synth.attrs["audio"], sr)
     audio = audio[:int(round(len(mapping) / tgt.video["fps"] * sr))]
     out = Path(out_video)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -123,14 +147,17 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
                  if diag else _Null()) as dw:
             for i in tqdm(range(len(mapping)), desc="composite", unit="frame", dynamic_ncols=True):
                 j = int(mapping[i])
+                if i % 256 == 0:
+                    textures = np.asarray(synth["texture"][i:i + 256])
                 t0 = time.perf_counter()
                 frame = background_frame(synth, tgt, mapping, i)
                 timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
-                result = composite_frame(frame, np.asarray(synth["texture"][i]), j, tgt, p, timing)
+                texture = textures[i % 256]
+                result = composite_frame(frame, texture, j, tgt, p, timing)
                 t0 = time.perf_counter()
                 w.write(result)
                 if diag:
-                    dw.write(diagnostic(frame, result, lips[i], synth["texture"].shape[1]))
+                    dw.write(diagnostic(frame, result, texture, lips[i]))
                 timing["encode"] = timing.get("encode", 0.0) + time.perf_counter() - t0
         os.replace(tmp, out)
         if diag:
@@ -167,9 +194,18 @@ def background_frame(synth, tgt: Target, mapping: np.ndarray, i: int) -> np.ndar
     return tgt.reader.get(j)
 
 
+def run_stage(params: dict) -> dict:
+    """The DVC stage: ``composite.out_dir``/result.mp4 and the per-phase timing in metrics/composite.json."""
+    ms = run(params, params["synthesize"]["out"], str(Path(params["composite"]["out_dir"]) / "result.mp4"))
+    metrics = Path("metrics/composite.json")
+    metrics.parent.mkdir(exist_ok=True)
+    metrics.write_text(json.dumps({"ms_per_frame": {k: round(v, 2) for k, v in ms.items()},
+                                   "fps": round(1000 / sum(ms.values()), 2)}, indent=2) + "\n")
+    return ms
+
+
 def main(argv=None) -> int:
-    return stage_main("lipsynth composite", __doc__,
-                      lambda p: run(p, p["synthesize"]["out"], p["composite"]["out"]), argv)
+    return stage_main("lipsynth composite", __doc__, run_stage, argv)
 
 
 if __name__ == "__main__":

@@ -28,20 +28,23 @@ def _fill(poly: np.ndarray, size: int) -> np.ndarray:
     return m.astype(np.float32)
 
 
-def layer_masks(landmarks_uv: np.ndarray, size: int, feather: float) -> tuple[np.ndarray, np.ndarray]:
+def layer_masks(landmarks_uv: np.ndarray, size: int, feather: float,
+                overlap: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
     """Mouth-region (above the chin) and neck (below it) masks, (T, T) float32 in [0, 1].
 
     The mouth region is bounded by the chin spline and a line at the height of the nose tip
     (landmark 30), so cheeks, mouth, chin are replaced and the eyes/nose never are; the neck
-    runs from the chin to the bottom of the texture between the jaw's lowest contour points.
+    runs from ``overlap`` px above the chin to the bottom of the texture between the lower jaw
+    points. The overlap keeps a = M1 + (1 − M1)(1 − M2) M3 at 1 across the feathered chin
+    (two masks feathered at the same edge would leave a dark seam along the jawline).
     """
     spline = chin_spline(landmarks_uv[CHIN])
     top = landmarks_uv[30, 1]
     mouth_poly = np.vstack([spline, [[spline[-1, 0], top], [spline[0, 0], top]]])
     mouth = _fill(mouth_poly, size)
-    low = spline[8:-8]                                   # the chin part of the jaw (its lower half)
+    low = spline[8:-8] - [0.0, overlap]                  # the chin part of the jaw (its lower half)
     neck_poly = np.vstack([low, [[low[-1, 0], size + 2], [low[0, 0], size + 2]]])
-    neck = _fill(neck_poly, size) * (1 - mouth)
+    neck = _fill(neck_poly, size)
     k = max(1, int(2 * round(feather) + 1))
     blur = lambda m: cv2.GaussianBlur(m, (k * 2 + 1, k * 2 + 1), feather)
     return blur(mouth), blur(neck)

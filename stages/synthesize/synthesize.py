@@ -66,6 +66,9 @@ def candidate_pool(stores: dict, target: dict, p: dict) -> np.ndarray:
     extra = np.concatenate([v["first_frame"] + usable(fr, lmg, v) for v in fr.attrs["videos"]
                             if v["split"] == "train" and v["n_frames"] and not v.get("excluded")
                             and v["name"] != target["name"]] or [np.zeros(0, int)])
+    if not len(extra):
+        log.info("candidate pool: the target's %d usable frames (a longer target covers more mouth shapes)", len(own))
+        return own
     room = p["pool_max"] - len(own)
     if len(extra) > room:
         extra = extra[np.unique(np.linspace(0, len(extra) - 1, room).round().astype(int))]
