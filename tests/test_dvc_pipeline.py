@@ -46,7 +46,8 @@ def project(tmp_path_factory):
     return proj
 
 
-STAGES = ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca", "train", "delay_sweep")
+STAGES = ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca", "train", "delay_sweep", "synthesize",
+          "composite")
 
 
 @pytest.mark.slow
@@ -137,3 +138,88 @@ def test_cluster_param_invalidates_nothing(project):
     params["cluster"]["n_workers"] = 1
     (project / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     assert "up to date" in dvc(project, "status")
+
+
+def opening_of(video, project):
+    """Inner-lip opening per frame of a video, from the pipeline's own landmark tracker."""
+    from stages.composite import quality
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    _, lms, valid = quality.video_landmarks(video, params["landmarks"])
+    assert valid.mean() > 0.9, f"{video}: a face on only {valid.mean():.0%} of the frames"
+    return quality.inner_opening(lms), valid
+
+
+@pytest.mark.slow
+def test_repro_ends_with_a_lip_synced_mp4_of_the_synthetic_speaker(project):
+    import av
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    out = project / params["composite"]["out_dir"] / "result.mp4"
+    with av.open(str(out)) as c:
+        v, a = c.streams.video[0], c.streams.audio[0]
+        assert v.codec_context.name == "h264" and v.codec_context.pix_fmt == "yuv420p"
+        assert a.codec_context.name == "aac"
+        assert abs(float(v.average_rate) - 25.0) < 1e-6
+        n = sum(1 for _ in c.decode(video=0))
+    assert n == 250                                              # the 10 s audio at the target's 25 fps
+    assert (out.parent / "result.diagnostic.mp4").exists()
+    metrics = json.loads((project / "metrics" / "composite.json").read_text())
+    assert set(metrics["ms_per_frame"]) >= {"decode", "flow", "render_back", "blend", "encode"}
+    # lip sync: the output mouth follows the mouth the audio was spoken with (speaker_03's truth),
+    # not the target's own (speaker_00)
+    opening, valid = opening_of(out, project)
+    source = np.load(project / "data" / "synthetic_speaker" / "speaker_03.truth.npz")["mouth"][:, 0]
+    target = np.load(project / "data" / "synthetic_speaker" / "speaker_00.truth.npz")["mouth"][:, 0]
+    corr_source = np.corrcoef(opening[valid], source[valid])[0, 1]
+    corr_target = np.corrcoef(opening[valid], target[valid])[0, 1]
+    assert corr_source > 0.6, corr_source
+    assert corr_source > corr_target + 0.3, (corr_source, corr_target)
+
+
+def write_wav(path, samples, rate, channels=1):
+    import wave
+    pcm = np.clip(np.repeat(samples[:, None], channels, 1) * 32767, -32768, 32767).astype("<i2")
+    with wave.open(str(path), "wb") as w:
+        w.setnchannels(channels); w.setsampwidth(2); w.setframerate(rate)
+        w.writeframes(pcm.tobytes())
+
+
+def speak(project, tmp_path, *args):
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", "speak", "--model", str(project / "models" / "lstm"),
+                           "--cache", str(tmp_path / "cache"), *map(str, args)],
+                          cwd=project, capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_speak_with_silent_audio_gives_a_closed_mouth(project, tmp_path):
+    silent = tmp_path / "silent.wav"
+    write_wav(silent, np.zeros(44100 * 4), 44100, channels=2)     # 4 s of digital silence, 44.1 kHz stereo
+    target = project / "data" / "synthetic_speaker" / "speaker_01.mp4"
+    out = tmp_path / "silent.mp4"
+    r = speak(project, tmp_path, "--audio", silent, "--target", target, "--out", out)
+    assert r.returncode == 0, r.stderr
+    import av
+    with av.open(str(out)) as c:
+        assert c.streams.audio and sum(1 for _ in c.decode(video=0)) == 100
+    silent_opening, _ = opening_of(out, project)
+    spoken_opening, _ = opening_of(project / "outputs" / "synthetic_speaker" / "result.mp4", project)
+    assert np.percentile(silent_opening, 90) < 0.4 * np.percentile(spoken_opening, 90), \
+        (np.percentile(silent_opening, 90), np.percentile(spoken_opening, 90))
+    assert not list(tmp_path.glob(".*tmp*")) and not list(tmp_path.glob(".lipsynth-speak-*"))
+
+
+@pytest.mark.slow
+def test_speak_refuses_a_target_without_a_face_and_keeps_the_old_output(project, tmp_path):
+    from tests.media_fixtures import make_clip
+    rng = np.random.default_rng(0)
+    noface = tmp_path / "wall.mp4"
+    make_clip(noface, frames=rng.integers(0, 255, (50, 256, 320, 3), dtype=np.uint8))
+    out = tmp_path / "result.mp4"
+    out.write_bytes(b"previous result")
+    r = speak(project, tmp_path, "--audio", project / "data" / "synthetic_speaker" / "speaker_03.mp4",
+              "--target", noface, "--out", out)
+    assert r.returncode == 2, r.stderr
+    err = r.stderr.strip().splitlines()
+    assert err[-1].startswith("lipsynth: error: ") and str(noface) in err[-1] and "face" in err[-1], r.stderr
+    assert [e for e in err if e.startswith("lipsynth: error")] == [err[-1]]
+    assert out.read_bytes() == b"previous result"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "result.mp4", "wall.mp4"]

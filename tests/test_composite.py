@@ -1,0 +1,94 @@
+"""Composite pieces (paper 000 §3.4) without I/O: layers, jaw correction, pyramid blend, render-back."""
+import cv2
+import numpy as np
+import pytest
+import skimage.data
+
+from pipeline.geometry import intrinsics
+from stages.composite.layers import chin_spline, jaw_band, jaw_correction, layer_masks, pyramid_blend, synth_alpha
+from stages.composite.render import inverse_map, render, texture_footprint
+from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
+from stages.frontalize.warp import Surface, TextureWindow, frontal_texture
+from tests.test_frontal_warp import render as splat
+
+WINDOW = TextureWindow(-80.0, 20.0, 160 / 128, 128)       # params.yaml: texture_x_mm, texture_y_mm, size
+
+
+@pytest.fixture(scope="module")
+def geometry(face3d):
+    step = 2.0
+    xs, ys = np.arange(-110, 111, step), np.arange(-80, 221, step)
+    d, known = face_depth_on_grid(face3d, xs, ys)
+    return Surface(extend_depth(np.nan_to_num(d), known), xs[0], ys[0], step)
+
+
+@pytest.fixture(scope="module")
+def landmarks_uv(face3d):
+    return WINDOW.to_pixels(face3d[:, :2])
+
+
+def test_pyramid_blend_reproduces_its_inputs_where_alpha_is_0_or_1():
+    rng = np.random.default_rng(0)
+    front = rng.integers(0, 256, (96, 120, 3)).astype(np.uint8)
+    back = cv2.GaussianBlur(rng.integers(0, 256, (96, 120, 3)).astype(np.uint8), (0, 0), 3)
+    ones, zeros = np.ones((96, 120), np.float32), np.zeros((96, 120), np.float32)
+    assert np.abs(pyramid_blend(front, back, ones).astype(int) - front).max() <= 1
+    assert np.abs(pyramid_blend(front, back, zeros).astype(int) - back).max() <= 1
+    step = zeros.copy()
+    step[:, 60:] = 1
+    out = pyramid_blend(front, back, step).astype(int)
+    assert np.abs(out[:, :30] - back[:, :30]).mean() < 3         # far from the seam: untouched
+    assert np.abs(out[:, 90:] - front[:, 90:]).mean() < 3
+
+
+def test_layer_alpha_is_continuous_across_the_chin(landmarks_uv):
+    mouth, neck = layer_masks(landmarks_uv, 128, feather=2.0)
+    no_shirt = np.zeros_like(mouth)
+    a = synth_alpha(mouth, neck, no_shirt)
+    chin = chin_spline(landmarks_uv[2:15])
+    u = int(round(landmarks_uv[8, 0]))
+    v_chin = int(round(chin[len(chin) // 2, 1]))
+    column = a[int(landmarks_uv[57, 1]):min(v_chin + 12, 127), u]
+    assert column.min() > 0.97, column.min()                  # no seam where the two layers meet
+    assert a[int(landmarks_uv[30, 1]) - 4, u] < 0.05          # the nose and eyes are never replaced
+    shirt = np.zeros_like(mouth)
+    shirt[v_chin + 6:] = 1                                     # the target's shirt is in front of the neck
+    a2 = synth_alpha(mouth, neck, shirt)
+    assert a2[v_chin + 8:, u].max() < 0.05
+    assert a2[int(landmarks_uv[57, 1]), u] > 0.97
+
+
+def test_jaw_correction_moves_the_synthesized_jaw_onto_the_target(landmarks_uv):
+    face = cv2.resize(skimage.data.astronaut()[60:260, 140:340], (128, 128))
+    shift = np.float32([[1, 0, 0], [0, 1, 3]])                 # synthesized chin 3 px too low
+    synth = cv2.warpAffine(face, shift, (128, 128), borderMode=cv2.BORDER_REFLECT)
+    band = jaw_band(landmarks_uv, 128, 6.0)
+    fixed = jaw_correction(synth, face, band)
+    near, far = band > 0.6, band < 1e-3
+    err = lambda img, m: np.abs(img.astype(float) - face.astype(float))[m].mean()
+    assert err(fixed, near) < 0.5 * err(synth, near), (err(fixed, near), err(synth, near))
+    assert np.abs(fixed.astype(int) - synth)[far].mean() < 1.0   # away from the jawline: untouched
+
+
+def test_render_back_inverts_the_frontal_warp(geometry):
+    photo = cv2.GaussianBlur(skimage.data.astronaut()[40:340, 100:320], (0, 0), 2.0)   # detail the texture can hold
+    K = intrinsics(320, 400, 1.5)
+    rvec, tvec = np.radians([6.0, -14.0, 4.0]), np.array([0.0, -40.0, 650.0])
+    frame = splat(geometry, photo, rvec, tvec, K)
+    points = WINDOW.grid_points(geometry)
+    texture = frontal_texture(frame, points, rvec, tvec, K)
+    box = texture_footprint(points, rvec, tvec, K, frame.shape)
+    x0, y0, x1, y1 = box
+
+    def back_error(r):
+        mu, mv = inverse_map(box, geometry, WINDOW, r, tvec, K)
+        img, cover = render(texture, mu, mv)
+        inside = cv2.erode((cover > 0.99).astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+        inside &= frame[y0:y1, x0:x1].any(-1)
+        return np.abs(img.astype(float) - frame[y0:y1, x0:x1])[inside].mean(), inside.mean()
+
+    err, covered = back_error(rvec)
+    wrong, _ = back_error(np.zeros(3))
+    assert covered > 0.5
+    assert err < 8.0, err                                      # ≈ 6: two resamplings of a splatted render
+    assert err < 0.3 * wrong, (err, wrong)
