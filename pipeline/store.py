@@ -115,3 +115,19 @@ def i420_to_rgb(i420: np.ndarray) -> np.ndarray:
     """(3S/2, S) I420 → (S, S, 3) RGB uint8. The first S rows alone are the grey (luma) image."""
     import cv2
     return cv2.cvtColor(np.ascontiguousarray(i420), cv2.COLOR_YUV2RGB_I420)
+
+
+def take(array, rows: np.ndarray) -> np.ndarray:
+    """``array[rows]`` for any row indices, read as runs of consecutive rows (one slice per run).
+
+    zarr's orthogonal selection decodes a chunk once per selected row; pools of candidate
+    frames are long runs of consecutive frames, so slices are much cheaper.
+    """
+    rows = np.asarray(rows, np.int64)
+    if not len(rows):
+        return np.zeros((0, *array.shape[1:]), array.dtype)
+    breaks = np.flatnonzero(np.diff(rows) != 1) + 1
+    parts = []
+    for run in np.split(rows, breaks):
+        parts.append(np.asarray(array[int(run[0]):int(run[-1]) + 1]))
+    return np.concatenate(parts)

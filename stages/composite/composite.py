@@ -98,6 +98,10 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     t2 = time.perf_counter()
     a = rendered[..., 3].astype(np.float32) / 255 * cover
     back = frame[y0:y1, x0:x1]
+    if p["sharpen"] > 0:              # give back the detail the resampling chain took (unsharp mask)
+        rgb = rendered[..., :3].astype(np.float32)
+        rgb += p["sharpen"] * (rgb - cv2.GaussianBlur(rgb, (0, 0), p["sharpen_sigma"]))
+        rendered = np.dstack([np.clip(rgb + 0.5, 0, 255).astype(np.uint8), rendered[..., 3]])
     # outside the layer's support the front image is the target itself, so the pyramid's coarse
     # levels blend the synthesized face with the target only where they actually differ
     support = cv2.dilate((a > 1e-3).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)

@@ -79,7 +79,7 @@ def jaw_correction(synth_rgb: np.ndarray, target_rgb: np.ndarray, band: np.ndarr
     gy, gx = np.mgrid[0:T, 0:T].astype(np.float32)
     mx = gx + band * flow[..., 0]
     my = gy + band * flow[..., 1]
-    return cv2.remap(synth_rgb, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return cv2.remap(synth_rgb, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
 
 
 def pyramid_blend(front: np.ndarray, back: np.ndarray, alpha: np.ndarray, levels: int = 5) -> np.ndarray:

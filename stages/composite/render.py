@@ -56,6 +56,6 @@ def render(texture: np.ndarray, map_u: np.ndarray, map_v: np.ndarray) -> tuple[n
     Returns (h, w, C) image and (h, w) float32 coverage with a 2-pixel soft edge.
     """
     T = texture.shape[0]
-    img = cv2.remap(texture, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    img = cv2.remap(texture, map_u, map_v, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
     edge = np.minimum.reduce([map_u, map_v, T - 1 - map_u, T - 1 - map_v])
     return img, np.clip(edge / 2.0, 0.0, 1.0).astype(np.float32)

@@ -33,8 +33,9 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.errors import LipsynthError
+from pipeline.geometry import euler_degrees
 from pipeline.runner import stage_main
-from pipeline.store import atomic_output, create_group, i420_to_rgb, open_group
+from pipeline.store import atomic_output, create_group, open_group, take
 from stages.pca.pca import LIP_POINTS
 from stages.synthesize import retime as rt
 from stages.synthesize import texture as tx
@@ -61,17 +62,21 @@ def candidate_pool(stores: dict, target: dict, p: dict) -> np.ndarray:
     """Global frame indices (into the target's stores) of the candidate pool; target frames first."""
     fr, lmg = stores["frontalize"], stores["landmarks"]
     own = target["first_frame"] + usable(fr, lmg, target)
+    if p.get("exclude_target_from_pool"):
+        own = own[:0]                                  # evaluation: the true frames may not be copied
     if len(own) >= p["pool_min"]:
         return own
-    extra = np.concatenate([v["first_frame"] + usable(fr, lmg, v) for v in fr.attrs["videos"]
-                            if v["split"] == "train" and v["n_frames"] and not v.get("excluded")
-                            and v["name"] != target["name"]] or [np.zeros(0, int)])
-    if not len(extra):
+    others = [v for v in fr.attrs["videos"] if v["split"] == "train" and v["n_frames"] and not v.get("excluded")
+              and v["name"] != target["name"]]
+    if not others:
         log.info("candidate pool: the target's %d usable frames (a longer target covers more mouth shapes)", len(own))
         return own
+    # whole videos spread evenly over the corpus: contiguous runs are cheap to read from the store
     room = p["pool_max"] - len(own)
-    if len(extra) > room:
-        extra = extra[np.unique(np.linspace(0, len(extra) - 1, room).round().astype(int))]
+    per_video = np.median([v["n_frames"] for v in others])
+    m = min(len(others), int(np.ceil(room / max(per_video, 1))))
+    picked = [others[k] for k in np.unique(np.linspace(0, len(others) - 1, m).round().astype(int))]
+    extra = np.concatenate([v["first_frame"] + usable(fr, lmg, v) for v in picked])[:room]
     log.info("target has %d usable frames (< pool_min %d): adding %d training frames of the corpus",
              len(own), p["pool_min"], len(extra))
     return np.concatenate([own, extra])
@@ -98,10 +103,16 @@ def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray,
     return mapping, repeated
 
 
+def open_stores(params: dict) -> dict:
+    """The corpus stores synthesize reads (landmarks, frontalize, pca) and the frontalize path."""
+    stores = {k: open_group(params[k]["out"]) for k in ("landmarks", "frontalize", "pca")}
+    stores["frontalize_path"] = str(Path(params["frontalize"]["out"]).absolute())
+    return stores
+
+
 def load_stores(params: dict, target: str) -> tuple[dict, dict]:
     """The stores that hold ``target`` (a corpus video name or path) and its index entry."""
-    stores = {k: open_group(params[k]["out"]) for k in ("ingest", "landmarks", "frontalize", "pca")}
-    stores["frontalize_path"] = str(Path(params["frontalize"]["out"]).absolute())
+    stores = open_stores(params)
     entry = find_video(stores["frontalize"].attrs["videos"], target)
     if entry is None:
         raise LipsynthError(f"synthesize.target={target!r}: not a video of the corpus in {params['frontalize']['out']} "
@@ -134,22 +145,28 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     target_lm[~np.asarray(lmg["valid"][sl])] = np.nan
     mapping, repeated = output_timing(samples, n_out, target_lm, entry["fps"], p)
     timing["retiming"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     pool = candidate_pool(stores, entry, p)
-    flm = np.asarray(fr["frontal_landmarks"].get_orthogonal_selection((pool,)), np.float64)
-    pool_tex = np.stack([i420_to_rgb(t) for t in fr["texture"].get_orthogonal_selection((pool,))])
+    flm = np.asarray(take(fr["frontal_landmarks"], pool), np.float64)
+    pool_tex = take(fr["texture"], pool)     # (P, 3T/2, T) I420
     shapes = flm[:, LIP_POINTS]
     up, lo = p["teeth_upper"], p["teeth_lower"]
     to_pool = lambda j: None if j is None else int(np.flatnonzero(pool == entry["first_frame"] + j)[0])
-    upper, lower = tx.pick_teeth_proxies(pool_tex, flm, np.ones(len(pool), bool), upper=to_pool(up), lower=to_pool(lo))
+    pose = np.asarray(take(fr["pose"], pool), np.float64)
+    yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
+    upper, lower = tx.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
+                                         upper=to_pool(up), lower=to_pool(lo))
     proxies = tx.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower)
     log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
              " (given)" if up is not None or lo is not None else " (automatic)")
-    T = pool_tex.shape[1]
+    T = pool_tex.shape[2]
+    timing["candidate_pool"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    phases = dict(candidate_search=0.0, weighted_median=0.0, teeth=0.0)
 
     def one(i):
         rgb, info = tx.synthesize_texture(lips[i], shapes, lambda idx: pool_tex[idx], flm, p["n"], p["alpha"], proxies)
-        return rgb, info["landmarks"], info["sigma"]
+        return rgb, info["landmarks"], info["sigma"], info["seconds"]
 
     with atomic_output(out) as tmp:
         g = create_group(tmp)
@@ -163,7 +180,12 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
                 tex[a:a + len(res)] = np.stack([r[0] for r in res])
                 cand[a:a + len(res)] = [r[1] for r in res]
                 sig[a:a + len(res)] = [r[2] for r in res]
-        timing["texture"] = time.perf_counter() - t0
+                for r in res:
+                    for k, v in r[3].items():
+                        phases[k] += v
+        wall = time.perf_counter() - t0
+        busy = sum(phases.values())                        # thread time: share the wall time out by phase
+        timing.update({k: wall * v / busy for k, v in phases.items()})
         g.create_array("target_frame", data=mapping.astype(np.int32))
         g.create_array("repeated", data=repeated)
         g.create_array("lip_points", data=lips.astype(np.float32))

@@ -19,6 +19,7 @@ Conventions
 """
 from __future__ import annotations
 
+import time
 from typing import Callable
 
 import cv2
@@ -491,19 +492,25 @@ def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture
     -------
     rgb : (T, T, 3) uint8.
     info : dict(indices (n,), weights (n,), sigma px, share (achieved Eq. 12 ratio),
-        landmarks (68, 2) weight-averaged candidate landmarks, lip_points (20, 2) = its 48–67).
+        landmarks (68, 2) weight-averaged candidate landmarks, lip_points (20, 2) = its 48–67,
+        seconds: wall time of candidate_search (incl. σ), weighted_median, teeth (incl. unsharp)).
     """
     unknown = set(params or {}) - {"s_max", "v_min", "feather_px", "unsharp_sigma", "unsharp_amount"}
     if unknown:
         raise ValueError(f"synthesize_texture params: unknown {sorted(unknown)} (sigmas/strength go to prepare_proxies)")
     p = {**DEFAULTS, **(params or {})}
+    t0 = time.perf_counter()
     idx, d2 = select_candidates(target_shape, shapes, n)
     sigma = solve_sigma(d2, idx, alpha)
     w = weights(d2[idx], sigma)
+    t1 = time.perf_counter()
     median = _rgb(weighted_median(get_texture(idx), w))
+    t2 = time.perf_counter()
     lm = weighted_lip_points(np.asarray(frontal_landmarks)[idx], w)
     rgb = apply_teeth_detail(median, lm[48:68], proxies, None, p["s_max"], p["v_min"], p["feather_px"],
                              p["unsharp_sigma"], p["unsharp_amount"])
+    t3 = time.perf_counter()
     info = dict(indices=idx, weights=w, sigma=sigma, share=candidate_share(d2, idx, sigma),
-                landmarks=lm, lip_points=lm[48:68])
+                landmarks=lm, lip_points=lm[48:68],
+                seconds=dict(candidate_search=t1 - t0, weighted_median=t2 - t1, teeth=t3 - t2))
     return rgb, info

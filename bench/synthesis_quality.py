@@ -1,0 +1,110 @@
+"""Quality of audio → video on real footage: clips as their own target (paper 000 §4.1, Video J).
+
+Each validation clip of a preprocessed corpus is re-synthesized from its own audio into itself
+without re-timing; the output is compared with the original (``stages.composite.quality``):
+mouth landmark error next to a static mouth, inner-lip opening correlation, mouth-region mean
+absolute difference, sharpness ratio, flicker ratio. Also prints ms/frame per phase.
+
+    python bench/synthesis_quality.py --params /work/grid/params.yaml --clips 10 --exclude-target
+
+``--params`` is the corpus's params file (its stores and model); the synthesize/composite
+settings come from the project's params.yaml. Writes ``--out``/quality.json, per-clip MP4s and
+a PNG strip (original | output) of the first clip.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import logging
+import shutil
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pipeline.params import load_params  # noqa: E402
+from pipeline.runner import setup_logging  # noqa: E402
+from stages.composite import composite, quality  # noqa: E402
+from stages.synthesize import synthesize  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def strip(original: Path, output: Path, box, frames=(10, 25, 40, 55)) -> np.ndarray:
+    """Mouth crops of the original (top) and output (bottom) at a few frames, ×3."""
+    from pipeline import media
+    rows = []
+    for path in (original, output):
+        imgs = {i: f for i, (_, f) in enumerate(media.iter_frames(path)) if i in frames}
+        x0, y0, x1, y1 = box
+        rows.append(np.hstack([imgs[i][y0:y1, x0:x1] for i in frames if i in imgs]))
+    s = np.vstack(rows)
+    return cv2.resize(s, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--params", required=True, help="params file of the preprocessed corpus (stores, model)")
+    ap.add_argument("--clips", type=int, default=10, help="validation clips to evaluate")
+    ap.add_argument("--exclude-target", action="store_true",
+                    help="candidates only from training videos (the true frames cannot be copied)")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override a synthesize/composite param, e.g. --set synthesize.n=20 (repeatable)")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "quality")
+    a = ap.parse_args()
+    setup_logging()
+    logging.getLogger("lipsynth.composite").setLevel(logging.WARNING)
+    corpus = load_params(a.params)
+    project = load_params(ROOT / "params.yaml")
+    a.out.mkdir(parents=True, exist_ok=True)
+    stores = synthesize.open_stores(corpus)
+    videos = [v for v in stores["frontalize"].attrs["videos"]
+              if v["split"] == "val" and v["n_frames"] and not v.get("excluded")]
+    videos = sorted(videos, key=lambda v: v["name"])[:a.clips]
+    results, timings = [], []
+    for v in videos:
+        p = copy.deepcopy(corpus)
+        p["synthesize"] = {**project["synthesize"], "audio": v["path"], "target": v["name"], "retime": False,
+                           "model": corpus["train"]["out"], "exclude_target_from_pool": a.exclude_target}
+        p["composite"] = {**project["composite"], "diagnostic": False}
+        for item in a.set:
+            key, value = item.split("=", 1)
+            section, name = key.split(".", 1)
+            p[section][name] = yaml.safe_load(value)
+        store = a.out / f".{v['name']}.synthesize.zarr"
+        mp4 = a.out / f"{v['name']}.mp4"
+        ms = synthesize.run(p, str(store), stores, v)
+        ms.update(composite.run(p, str(store), str(mp4)))
+        shutil.rmtree(store, ignore_errors=True)
+        out = quality.video_landmarks(mp4, corpus["landmarks"])
+        ref = quality.video_landmarks(v["path"], corpus["landmarks"])
+        q = quality.compare(*out, *ref)
+        q["clip"] = v["name"]
+        results.append(q)
+        timings.append(ms)
+        print(f"{v['name']}: mouth {q['mouth_error_px']:.2f} px ({q['mouth_error_iod_pct']:.2f}% IOD), static "
+              f"{q['static_mouth_error_px']:.2f} px, opening corr {q['opening_corr']:.3f}, MAD {q['mouth_mad']:.1f}, "
+              f"sharpness {q['sharpness_ratio']:.2f}, flicker {q['flicker_ratio']:.2f}", flush=True)
+        if len(results) == 1:
+            cv2.imwrite(str(a.out / f"{v['name']}_mouth_strip.png"), strip(Path(v["path"]), mp4, q["mouth_box"])[..., ::-1])
+    keys = ["mouth_error_px", "mouth_error_iod_pct", "static_mouth_error_px", "static_mouth_error_iod_pct",
+            "opening_corr", "mouth_mad", "sharpness_ratio", "flicker_ratio"]
+    median = {k: float(np.nanmedian([r[k] for r in results])) for k in keys}
+    phases = {k: float(np.median([t.get(k, 0.0) for t in timings])) for k in timings[0]}
+    summary = dict(clips=len(results), exclude_target=a.exclude_target, overrides=a.set, median=median, ms_per_frame_median=phases,
+                   per_clip=results)
+    (a.out / "quality.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print("\nmedian over", len(results), "clips:")
+    for k in keys:
+        print(f"  {k:<28} {median[k]:.3f}")
+    print("ms/frame (median over clips):", ", ".join(f"{k} {v:.1f}" for k, v in phases.items()),
+          f"→ {1000 / sum(phases.values()):.1f} frames/s")
+
+
+if __name__ == "__main__":
+    main()
