@@ -28,7 +28,8 @@ from pipeline import media
 from pipeline.geometry import intrinsics
 from pipeline.runner import stage_main
 from pipeline.store import i420_to_rgb, open_group
-from stages.composite.layers import jaw_band, jaw_correction, layer_masks, pyramid_blend, synth_alpha
+from stages.composite.layers import (colour_match, jaw_band, jaw_correction, layer_masks, pyramid_blend, skin_region,
+                                     synth_alpha)
 from stages.composite.render import inverse_map, render, texture_footprint
 from stages.frontalize.warp import Surface, TextureWindow
 
@@ -81,10 +82,12 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     lm = tgt.flm[j]
     T = synth_rgb.shape[0]
     target_tex = tgt.texture(j)
+    mouth, neck = layer_masks(lm, T, p["feather_px"], neck_depth=p["neck_depth"])
+    if p["colour_match"]:
+        synth_rgb = colour_match(synth_rgb, target_tex, skin_region(lm, mouth))
     if p["jaw_correction"]:
         synth_rgb = jaw_correction(synth_rgb, target_tex, jaw_band(lm, T, p["jaw_band_px"]))
     t1 = time.perf_counter()
-    mouth, neck = layer_masks(lm, T, p["feather_px"])
     shirt = cv2.GaussianBlur(tgt.clothing(j), (0, 0), 1.5)
     alpha = synth_alpha(mouth, neck, shirt)
     rvec, tvec = tgt.pose[j, :3], tgt.pose[j, 3:]

@@ -28,23 +28,28 @@ def _fill(poly: np.ndarray, size: int) -> np.ndarray:
     return m.astype(np.float32)
 
 
-def layer_masks(landmarks_uv: np.ndarray, size: int, feather: float,
-                overlap: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+def layer_masks(landmarks_uv: np.ndarray, size: int, feather: float, overlap: float = 3.0,
+                neck_depth: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
     """Mouth-region (above the chin) and neck (below it) masks, (T, T) float32 in [0, 1].
 
     The mouth region is bounded by the chin spline and a line at the height of the nose tip
     (landmark 30), so cheeks, mouth, chin are replaced and the eyes/nose never are; the neck
-    runs from ``overlap`` px above the chin to the bottom of the texture between the lower jaw
-    points. The overlap keeps a = M1 + (1 − M1)(1 − M2) M3 at 1 across the feathered chin
+    runs from ``overlap`` px above the chin down by ``neck_depth`` × the nose-to-chin height
+    (fading out over its lower half), as wide as the middle half of the chin spline. The overlap keeps a = M1 + (1 − M1)(1 − M2) M3 at 1 across the feathered chin
     (two masks feathered at the same edge would leave a dark seam along the jawline).
     """
     spline = chin_spline(landmarks_uv[CHIN])
     top = landmarks_uv[30, 1]
     mouth_poly = np.vstack([spline, [[spline[-1, 0], top], [spline[0, 0], top]]])
     mouth = _fill(mouth_poly, size)
-    low = spline[8:-8] - [0.0, overlap]                  # the chin part of the jaw (its lower half)
-    neck_poly = np.vstack([low, [[low[-1, 0], size + 2], [low[0, 0], size + 2]]])
+    n = len(spline)
+    low = spline[n // 4:n - n // 4] - [0.0, overlap]    # the chin, between jaw points ≈5 and ≈11: the neck's width
+    depth = neck_depth * (spline[:, 1].max() - top)      # the neck only matters just below the moving chin
+    bottom = low[:, 1].max() + depth
+    neck_poly = np.vstack([low, [[low[-1, 0], bottom], [low[0, 0], bottom]]])
     neck = _fill(neck_poly, size)
+    fade = np.clip((bottom - np.arange(size, dtype=np.float32)) / max(depth / 2, 1.0), 0, 1)
+    neck *= fade[:, None]                                # fade out over the lower half of its depth
     k = max(1, int(2 * round(feather) + 1))
     blur = lambda m: cv2.GaussianBlur(m, (k * 2 + 1, k * 2 + 1), feather)
     return blur(mouth), blur(neck)
@@ -97,3 +102,31 @@ def pyramid_blend(front: np.ndarray, back: np.ndarray, alpha: np.ndarray, levels
         lb = gb[lvl] - cv2.pyrUp(gb[lvl + 1], dstsize=size)
         out = cv2.pyrUp(out, dstsize=size) + ga[lvl][..., None] * lf + (1 - ga[lvl][..., None]) * lb
     return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+def colour_match(synth_rgb: np.ndarray, target_rgb: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """Give the synthesized texture the target frame's colour statistics (per Lab channel mean
+    and standard deviation over ``region``, the skin of the lower face).
+
+    Candidates drawn from other videos of the corpus carry their own lighting and white
+    balance; without this the replaced lower face is a different shade from the rest of the face.
+    synth_rgb, target_rgb : (T, T, 3) uint8; region : (T, T) bool → (T, T, 3) uint8.
+    """
+    if region.sum() < 50:
+        return synth_rgb
+    s = cv2.cvtColor(synth_rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+    t = cv2.cvtColor(target_rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+    ms, ss = s[region].mean(0), s[region].std(0) + 1e-3
+    mt, st = t[region].mean(0), t[region].std(0) + 1e-3
+    gain = np.clip(st / ss, 0.5, 2.0)
+    out = (s - ms) * gain + mt
+    return cv2.cvtColor(np.clip(out + 0.5, 0, 255).astype(np.uint8), cv2.COLOR_LAB2RGB)
+
+
+def skin_region(landmarks_uv: np.ndarray, mouth: np.ndarray) -> np.ndarray:
+    """(T, T) bool: the replaced lower face without the lips and mouth interior (outer lip polygon grown 3 px)."""
+    T = mouth.shape[0]
+    lips = np.zeros((T, T), np.uint8)
+    cv2.fillPoly(lips, [np.round(landmarks_uv[48:60] * 16).astype(np.int32)], 1, shift=4)
+    lips = cv2.dilate(lips, np.ones((7, 7), np.uint8))
+    return (mouth > 0.99) & (lips == 0)

@@ -36,6 +36,7 @@ from pipeline.errors import LipsynthError
 from pipeline.geometry import euler_degrees
 from pipeline.runner import stage_main
 from pipeline.store import atomic_output, create_group, open_group, take
+from stages.frontalize.model3d import IOD_MM
 from stages.pca.pca import LIP_POINTS
 from stages.synthesize import retime as rt
 from stages.synthesize import texture as tx
@@ -82,6 +83,25 @@ def candidate_pool(stores: dict, target: dict, p: dict) -> np.ndarray:
     return np.concatenate([own, extra])
 
 
+def retarget(lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray) -> np.ndarray:
+    """Predicted lip shapes of a model trained on another corpus, moved onto the target's mouth.
+
+    Each shape keeps its displacement from the model's mean shape, scaled by the ratio of the
+    mean mouth widths (corner to corner), and is added to the target frames' mean shape: the
+    model's speaker may hold the mouth lower, wider or narrower in the canonical frame, and
+    without this the nearest candidates (§3.2.1) are the target's frames that happen to be
+    furthest from its own mouth position.
+
+    lips : (N, 18, 2); model_mean : (18, 2); target_shapes : (M, 18, 2) texture px → (N, 18, 2).
+    """
+    target_mean = np.nanmean(target_shapes, axis=0)
+    width = lambda s: np.linalg.norm(s[6] - s[0])                 # 48 → 54, the mouth corners
+    scale = width(target_mean) / width(model_mean)
+    log.info("re-targeting predicted mouth shapes onto the target's mean mouth (offset %.1f px, width × %.2f)",
+             float(np.linalg.norm((target_mean - model_mean).mean(0))), scale)
+    return target_mean + (lips - model_mean) * scale
+
+
 def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray, fps: float, p: dict):
     """Target frame per output frame (N,) and the repeated flags (§3.3)."""
     M = len(target_landmarks)
@@ -105,7 +125,9 @@ def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray,
 
 def open_stores(params: dict) -> dict:
     """The corpus stores synthesize reads (landmarks, frontalize, pca) and the frontalize path."""
-    stores = {k: open_group(params[k]["out"]) for k in ("landmarks", "frontalize", "pca")}
+    stores = {k: open_group(params[k]["out"]) for k in ("landmarks", "frontalize")}
+    if Path(params["pca"]["out"]).is_dir():            # only to check the model's PCA basis
+        stores["pca"] = open_group(params["pca"]["out"])
     stores["frontalize_path"] = str(Path(params["frontalize"]["out"]).absolute())
     return stores
 
@@ -133,10 +155,14 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     t0 = time.perf_counter()
     samples = load_audio(p["audio"])
     mouth = predict_mouth(samples, p["model"], entry["fps"], device=p["device"])
-    if "pca" in stores and mouth["pca_fingerprint"] != stores["pca"].attrs["fingerprint"]:
-        log.warning("model PCA basis %s differs from the store's %s: shapes are compared in canonical pixels",
-                    mouth["pca_fingerprint"], stores["pca"].attrs["fingerprint"])
+    same_corpus = "pca" in stores and mouth["pca_fingerprint"] == stores["pca"].attrs["fingerprint"]
     lips = mouth["lip_points"].astype(np.float64)
+    store_iod = IOD_MM / fr.attrs["texture_window"]["mm_per_px"]
+    if mouth["iod_px"] and abs(mouth["iod_px"] - store_iod) > 1e-3:
+        # same canonical window in mm, other texture size: scale the model's texture pixels to the store's
+        log.info("model texture scale %.1f px per IOD, target store %.1f: lip points rescaled", mouth["iod_px"], store_iod)
+        lips *= store_iod / mouth["iod_px"]
+        mouth["mean_shape"] = mouth["mean_shape"] * (store_iod / mouth["iod_px"])
     n_out = len(lips)
     timing["prediction"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -150,6 +176,8 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     flm = np.asarray(take(fr["frontal_landmarks"], pool), np.float64)
     pool_tex = take(fr["texture"], pool)     # (P, 3T/2, T) I420
     shapes = flm[:, LIP_POINTS]
+    if p["retarget"] == "always" or (p["retarget"] == "auto" and not same_corpus):
+        lips = retarget(lips, mouth["mean_shape"], shapes)
     up, lo = p["teeth_upper"], p["teeth_lower"]
     to_pool = lambda j: None if j is None else int(np.flatnonzero(pool == entry["first_frame"] + j)[0])
     pose = np.asarray(take(fr["pose"], pool), np.float64)

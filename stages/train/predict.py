@@ -60,7 +60,8 @@ def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: flo
     coeffs = to_frames(c100, t).astype(np.float32)
     basis = dict(mean=arrays["pca_mean"], components=arrays["pca_components"])
     return dict(coeffs=coeffs, lip_points=reconstruct(coeffs, basis).astype(np.float32), frame_time=t,
-                fps=fps, pca_fingerprint=config["pca_fingerprint"], coeffs_100hz=c100)
+                fps=fps, pca_fingerprint=config["pca_fingerprint"], coeffs_100hz=c100,
+                iod_px=config.get("iod_px"), mean_shape=basis["mean"].reshape(-1, 2).astype(np.float32))
 
 
 def main(argv=None) -> int:
