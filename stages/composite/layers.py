@@ -35,7 +35,7 @@ def layer_masks(landmarks_uv: np.ndarray, size: int, feather: float, overlap: fl
     The mouth region is bounded by the chin spline and a line at the height of the nose tip
     (landmark 30), so cheeks, mouth, chin are replaced and the eyes/nose never are; the neck
     runs from ``overlap`` px above the chin down by ``neck_depth`` × the nose-to-chin height
-    (fading out over its lower half), as wide as the middle half of the chin spline. The overlap keeps a = M1 + (1 − M1)(1 − M2) M3 at 1 across the feathered chin
+    (fading out over its lower third), as wide as the middle half of the chin spline. The overlap keeps a = M1 + (1 − M1)(1 − M2) M3 at 1 across the feathered chin
     (two masks feathered at the same edge would leave a dark seam along the jawline).
     """
     spline = chin_spline(landmarks_uv[CHIN])
@@ -48,8 +48,8 @@ def layer_masks(landmarks_uv: np.ndarray, size: int, feather: float, overlap: fl
     bottom = low[:, 1].max() + depth
     neck_poly = np.vstack([low, [[low[-1, 0], bottom], [low[0, 0], bottom]]])
     neck = _fill(neck_poly, size)
-    fade = np.clip((bottom - np.arange(size, dtype=np.float32)) / max(depth / 2, 1.0), 0, 1)
-    neck *= fade[:, None]                                # fade out over the lower half of its depth
+    fade = np.clip((bottom - np.arange(size, dtype=np.float32)) / max(depth / 3, 1.0), 0, 1)
+    neck *= fade[:, None]                                # fade out over the lower third of its depth
     k = max(1, int(2 * round(feather) + 1))
     blur = lambda m: cv2.GaussianBlur(m, (k * 2 + 1, k * 2 + 1), feather)
     return blur(mouth), blur(neck)
