@@ -163,28 +163,44 @@ def align_audio(samples: np.ndarray, audio_start: float, video_start: float, dur
 class FrameReader:
     """Random access to the frames of a video, cheap when indices mostly increase.
 
-    ``get(j)`` decodes forward from the current position; a backward jump reopens the file.
-    Frames are (H, W, 3) uint8 RGB.
+    ``get(j)`` decodes forward from the current position; every decoded frame is kept in an
+    LRU cache of ``cache_bytes`` (so ping-pong playback and re-timing's small backward steps
+    cost nothing); a backward jump past the cache reopens the file. Frames are (H, W, 3) uint8
+    RGB and must not be modified by the caller.
     """
 
-    def __init__(self, path):
+    def __init__(self, path, cache_bytes: int = 1 << 30):
+        from collections import OrderedDict
         self.path = str(path)
-        self._it, self._pos, self._last = None, -1, None
+        self._it, self._pos = None, -1
+        self._cache: OrderedDict = OrderedDict()
+        self._budget, self._bytes = cache_bytes, 0
 
     def _restart(self):
         self._it = (img for _, img in iter_frames(self.path))
-        self._pos, self._last = -1, None
+        self._pos = -1
+
+    def _keep(self, j: int, img: np.ndarray) -> None:
+        self._cache[j] = img
+        self._bytes += img.nbytes
+        while self._bytes > self._budget and len(self._cache) > 1:
+            _, old = self._cache.popitem(last=False)
+            self._bytes -= old.nbytes
 
     def get(self, j: int) -> np.ndarray:
+        if j in self._cache:
+            self._cache.move_to_end(j)
+            return self._cache[j]
         if self._it is None or j < self._pos:
             self._restart()
         while self._pos < j:
             try:
-                self._last = next(self._it)
+                img = next(self._it)
             except StopIteration:
                 raise BadInputError(self.path, f"has no frame {j} (only {self._pos + 1})") from None
             self._pos += 1
-        return self._last
+            self._keep(self._pos, img)
+        return self._cache[j]
 
 
 def _rate(fps: float) -> Fraction:

@@ -223,3 +223,29 @@ def test_speak_refuses_a_target_without_a_face_and_keeps_the_old_output(project,
     assert [e for e in err if e.startswith("lipsynth: error")] == [err[-1]]
     assert out.read_bytes() == b"previous result"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "result.mp4", "wall.mp4"]
+
+
+@pytest.mark.slow
+def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
+    """HDTF footage (512², 25 fps) as target, radio speech (16 kHz stereo WAV) as audio, the
+    synthetic speaker's model (re-targeted onto the real mouth): only the lower face changes."""
+    from tests.conftest import shared
+    from stages.composite import quality
+    target = shared("hdtf", "WDA_KatieHill_000.mp4")
+    audio = shared("hdtf", "RD_Radio36_000.wav")
+    out = tmp_path / "katie.mp4"
+    r = speak(project, tmp_path, "--audio", audio, "--target", target, "--out", out, "--no-retime")
+    assert r.returncode == 0, r.stderr
+    assert "re-targeting predicted mouth shapes" in r.stderr
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    out_gray, out_lm, out_ok = quality.video_landmarks(out, params["landmarks"])
+    ref_gray, ref_lm, ref_ok = quality.video_landmarks(target, params["landmarks"])
+    assert len(out_gray) == 200 and out_ok.mean() > 0.9            # 8 s at 25 fps, still a face
+    ok = out_ok & ref_ok
+    iod = np.median(quality.interocular(ref_lm[ok]))
+    lip_shift = np.linalg.norm(out_lm[ok][:, 48:68].mean(1) - ref_lm[ok][:, 48:68].mean(1), axis=1)
+    assert np.median(lip_shift) < 0.08 * iod, np.median(lip_shift) / iod   # the mouth stays where it was
+    box = quality.one_box(quality.mouth_boxes(ref_lm[ref_ok], ref_gray.shape[1:]))
+    assert quality.mean_abs_difference(out_gray, ref_gray, box) > 3.0       # ... but it is a new mouth
+    top = (0, 0, ref_gray.shape[2], int(ref_lm[ref_ok][:, 19, 1].min()) - 10)    # above the eyebrows
+    assert quality.mean_abs_difference(out_gray, ref_gray, top) < 2.0      # the rest is the target

@@ -18,6 +18,8 @@ import json
 import logging
 import os
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -32,6 +34,7 @@ from stages.composite.layers import (colour_match, jaw_band, jaw_correction, lay
                                      synth_alpha)
 from stages.composite.render import inverse_map, render, texture_footprint
 from stages.frontalize.warp import Surface, TextureWindow
+from stages.synthesize.retime import halfway_frame
 
 log = logging.getLogger("lipsynth.composite")
 
@@ -59,10 +62,12 @@ class Target:
 
     def _block(self, j: int) -> tuple[np.ndarray, np.ndarray]:
         b = j // self.BLOCK
-        if getattr(self, "_cached", (None,))[0] != b:
+        cached = getattr(self, "_cached", (None,))            # one read per block; safe across threads
+        if cached[0] != b:
             sl = slice(self.f0 + b * self.BLOCK, self.f0 + min((b + 1) * self.BLOCK, self.video["n_frames"]))
-            self._cached = (b, np.asarray(self.fr["texture"][sl]), np.asarray(self.fr["clothing_mask"][sl]))
-        return self._cached[1][j % self.BLOCK], self._cached[2][j % self.BLOCK]
+            cached = (b, np.asarray(self.fr["texture"][sl]), np.asarray(self.fr["clothing_mask"][sl]))
+            self._cached = cached
+        return cached[1][j % self.BLOCK], cached[2][j % self.BLOCK]
 
     def texture(self, j: int) -> np.ndarray:
         """Frontal texture (T, T, 3) uint8 RGB of target frame j."""
@@ -138,6 +143,7 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
     tgt = Target(synth, params)
     mapping = np.asarray(synth["target_frame"][...])
     lips = np.asarray(synth["lip_points"][...])
+    repeated = np.asarray(synth["repeated"][...], bool)
     sr = int(p["audio_rate"])
     audio, _ = media.read_audio(synth.attrs["audio"], sr)
     audio = audio[:int(round(len(mapping) / tgt.video["fps"] * sr))]
@@ -148,24 +154,46 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
     diag_tmp = diag.with_name(f".{diag.name}.tmp-{os.getpid()}.mp4") if diag else None
     timing: dict = {}
     t_start = time.perf_counter()
+
+    def work(frame, following, texture, j):
+        t: dict = {}
+        if following is not None:
+            t0 = time.perf_counter()
+            frame = halfway_frame(frame, following)
+            t["retime_flow"] = time.perf_counter() - t0
+        return frame, composite_frame(frame, texture, j, tgt, p, t), t
+
     try:
         with media.VideoWriter(tmp, tgt.video["fps"], p["crf"], p["preset"], audio, sr) as w, \
                 (media.VideoWriter(diag_tmp, tgt.video["fps"], p["crf"], p["preset"], audio, sr)
-                 if diag else _Null()) as dw:
-            for i in tqdm(range(len(mapping)), desc="composite", unit="frame", dynamic_ncols=True):
-                j = int(mapping[i])
-                if i % 256 == 0:
-                    textures = np.asarray(synth["texture"][i:i + 256])
-                t0 = time.perf_counter()
-                frame = background_frame(synth, tgt, mapping, i)
-                timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
-                texture = textures[i % 256]
-                result = composite_frame(frame, texture, j, tgt, p, timing)
-                t0 = time.perf_counter()
-                w.write(result)
-                if diag:
-                    dw.write(diagnostic(frame, result, texture, lips[i]))
-                timing["encode"] = timing.get("encode", 0.0) + time.perf_counter() - t0
+                 if diag else _Null()) as dw, ThreadPoolExecutor(p["threads"]) as pool:
+            pending: deque = deque()
+
+            def flush(keep: int) -> None:
+                while len(pending) > keep:
+                    i, texture, fut = pending.popleft()
+                    frame, result, t = fut.result()
+                    for k, v in t.items():
+                        timing[k] = timing.get(k, 0.0) + v
+                    t0 = time.perf_counter()
+                    w.write(result)
+                    if diag:
+                        dw.write(diagnostic(frame, result, texture, lips[i]))
+                    timing["encode"] = timing.get("encode", 0.0) + time.perf_counter() - t0
+                    bar.update()
+
+            with tqdm(total=len(mapping), desc="composite", unit="frame", dynamic_ncols=True) as bar:
+                for i in range(len(mapping)):
+                    j = int(mapping[i])
+                    if i % 256 == 0:
+                        textures = np.asarray(synth["texture"][i:i + 256])
+                    t0 = time.perf_counter()
+                    frame, following = background_frames(repeated, tgt, mapping, i)
+                    timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
+                    texture = textures[i % 256]
+                    pending.append((i, texture, pool.submit(work, frame, following, texture, j)))
+                    flush(2 * p["threads"])
+                flush(0)
         os.replace(tmp, out)
         if diag:
             os.replace(diag_tmp, diag)
@@ -176,7 +204,7 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
     total = time.perf_counter() - t_start
     log.info("wrote %s: %d frames at %.3f fps in %.1f s (%.1f frames/s)", out, len(mapping), tgt.video["fps"],
              total, len(mapping) / total)
-    return {k: v / len(mapping) * 1000 for k, v in timing.items()}
+    return {k: v / len(mapping) * 1000 for k, v in timing.items()}       # thread time per frame
 
 
 class _Null:
@@ -190,15 +218,13 @@ class _Null:
         pass
 
 
-def background_frame(synth, tgt: Target, mapping: np.ndarray, i: int) -> np.ndarray:
-    """The target frame shown at output frame i. A repeated frame (re-timing) is replaced by the
-    flow half-way interpolation between its neighbours (§3.3, last paragraph)."""
-    from stages.synthesize.retime import halfway_frame
+def background_frames(repeated: np.ndarray, tgt: Target, mapping: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """The target frame shown at output frame i and, when re-timing repeated it, the next
+    distinct frame: the pair is replaced by its flow half-way interpolation (§3.3, last paragraph)."""
     j = int(mapping[i])
-    if bool(synth["repeated"][i]) and i + 1 < len(mapping) and int(mapping[i + 1]) != j:
-        prev = tgt.reader.get(j).copy()
-        return halfway_frame(prev, tgt.reader.get(int(mapping[i + 1])))
-    return tgt.reader.get(j)
+    if repeated[i] and i + 1 < len(mapping) and int(mapping[i + 1]) != j:
+        return tgt.reader.get(j), tgt.reader.get(int(mapping[i + 1]))
+    return tgt.reader.get(j), None
 
 
 def run_stage(params: dict) -> dict:

@@ -479,7 +479,7 @@ def interpolate_repeats(source: FrameSource, mapping: np.ndarray) -> Iterator[np
             yield fetch(j).copy()
 
 
-def halfway_frame(prev: np.ndarray, next_: np.ndarray, flow=None) -> np.ndarray:
+def halfway_frame(prev: np.ndarray, next_: np.ndarray, flow=None, max_side: int = 640) -> np.ndarray:
     """The frame half-way between two frames, by optical flow (paper §3.3, last paragraph).
 
     Average of ``prev`` warped by ½·F(prev→next) and ``next_`` warped by ½·F(next→prev).
@@ -493,6 +493,8 @@ def halfway_frame(prev: np.ndarray, next_: np.ndarray, flow=None) -> np.ndarray:
     prev, next_ : (H, W, 3) uint8 (any channel order).
     flow : a cv2.DISOpticalFlow (or any object with ``calc(grey0, grey1, None)``); default DIS
         fast preset.
+    max_side : the flow is estimated on the frames shrunk by an integer factor so their longer
+        side is at most this (px), then scaled back up.
 
     Returns
     -------
@@ -502,8 +504,14 @@ def halfway_frame(prev: np.ndarray, next_: np.ndarray, flow=None) -> np.ndarray:
         flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
     g0 = cv2.cvtColor(prev, cv2.COLOR_RGB2GRAY)
     g1 = cv2.cvtColor(next_, cv2.COLOR_RGB2GRAY)
-    a = _warp_half(prev, flow.calc(g0, g1, None))
-    b = _warp_half(next_, flow.calc(g1, g0, None))
+    h, w = g0.shape
+    k = max(1, int(np.ceil(max(h, w) / max_side)))     # flow is smooth: estimate it on a smaller image
+    if k > 1:
+        small = (w // k, h // k)
+        g0, g1 = cv2.resize(g0, small, interpolation=cv2.INTER_AREA), cv2.resize(g1, small, interpolation=cv2.INTER_AREA)
+    up = lambda f: f if k == 1 else cv2.resize(f, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(k)
+    a = _warp_half(prev, up(flow.calc(g0, g1, None)))
+    b = _warp_half(next_, up(flow.calc(g1, g0, None)))
     return cv2.addWeighted(a, 0.5, b, 0.5, 0.0)
 
 

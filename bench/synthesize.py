@@ -1,0 +1,127 @@
+"""Speed of audio → video (synthesize + composite), ms/frame per phase, at GRID size and at 720p.
+
+    python bench/synthesize.py --repeats 3
+
+GRID size: a validation clip of the preprocessed GRID corpus (``--grid-params``, default
+/work/grid/params.yaml) as target, 32 s of radio speech (../shared/data/hdtf) as audio,
+re-timing on (the 3 s target is extended by ping-pong). 720p: ``obama_08.mp4`` as target
+(preprocessed once into bench/results/cache with a 448 px crop and 192 px texture, as
+``lipsynth speak`` would), the same kind of audio. The model is the GRID model. Preprocessing
+of the target is not timed (it is cached); model loading is (in "prediction").
+
+Phases: prediction (audio → MFCC → LSTM → shapes; includes torch's first-call set-up),
+retiming, candidate_pool (reading the pool's textures), candidate_search, weighted_median,
+teeth, decode (target frames), retime_flow (half-way frames for repeats), flow (colour match +
+jaw-correction optical flow), render_back, blend, encode. Phase figures are thread time per
+frame (texture synthesis and compositing run 2 threads, so they add up to more than the wall
+time); "total" is wall time. Medians over repeats; the machine is noisy. The paper: 0.45
+s/frame on one core.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.params import load_params  # noqa: E402
+from pipeline.runner import setup_logging  # noqa: E402
+from pipeline.speak import preprocess_target  # noqa: E402
+from stages.composite import composite  # noqa: E402
+from stages.synthesize import synthesize  # noqa: E402
+
+SHARED = ROOT.parent / "shared" / "data"
+PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weighted_median", "teeth",
+          "decode", "retime_flow", "flow", "render_back", "blend", "encode"]
+
+
+def long_speech(out: Path) -> Path:
+    """The four 8 s radio-speech WAVs of ../shared/data/hdtf joined: 32 s, so fixed costs
+    (model load, reading the pool) weigh as little as in real use."""
+    import wave
+    if out.exists():
+        return out
+    frames, params = [], None
+    for f in sorted((SHARED / "hdtf").glob("RD_*.wav")):
+        with wave.open(str(f)) as w:
+            params = params or w.getparams()
+            frames.append(w.readframes(w.getnframes()))
+    with wave.open(str(out), "wb") as w:
+        w.setparams(params)
+        w.writeframes(b"".join(frames))
+    return out
+
+
+def one_run(p: dict, stores: dict, entry: dict, work: Path) -> tuple[dict, float, int]:
+    store = work / "synthesize.zarr"
+    t0 = time.perf_counter()
+    ms = synthesize.run(p, str(store), stores, entry)
+    ms.update(composite.run(p, str(store), str(work / "out.mp4")))
+    wall = time.perf_counter() - t0
+    n = synthesize.open_group(str(store)).attrs["n_frames"]
+    shutil.rmtree(store, ignore_errors=True)
+    return ms, wall, n
+
+
+def report(name: str, runs: list) -> None:
+    n = runs[0][2]
+    print(f"\n{name}: {n} output frames, {len(runs)} runs (medians)")
+    for k in PHASES:
+        v = np.median([r[0].get(k, 0.0) for r in runs])
+        print(f"  {k:<17} {v:7.1f} ms/frame")
+    wall = np.median([r[1] for r in runs])
+    print(f"  {'total':<17} {1000 * wall / n:7.1f} ms/frame → {n / wall:.1f} frames/s (wall, 2 cores)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--grid-params", default="/work/grid/params.yaml", help="params of the preprocessed GRID corpus")
+    ap.add_argument("--audio", default=None, help="speech file (default: 32 s of radio speech, see long_speech)")
+    ap.add_argument("--only", choices=["grid", "720p"], default=None)
+    a = ap.parse_args()
+    setup_logging()
+    import logging
+    for name in ("lipsynth.synthesize", "lipsynth.composite", "lipsynth.speak", "lipsynth.ingest",
+                 "lipsynth.landmarks", "lipsynth.frontalize", "lipsynth.parallel"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    project = load_params(ROOT / "params.yaml")
+    work = ROOT / "bench" / "results" / "synthesize"
+    work.mkdir(parents=True, exist_ok=True)
+    a.audio = a.audio or str(long_speech(work / "speech_32s.wav"))
+
+    if a.only in (None, "grid"):
+        corpus = load_params(a.grid_params)
+        stores = synthesize.open_stores(corpus)
+        entry = sorted([v for v in stores["frontalize"].attrs["videos"] if v["split"] == "val"
+                        and not v.get("excluded")], key=lambda v: v["name"])[0]
+        p = copy.deepcopy(corpus)
+        p["synthesize"] = {**project["synthesize"], "audio": a.audio, "target": entry["name"],
+                           "model": corpus["train"]["out"]}
+        p["composite"] = {**project["composite"], "diagnostic": False}
+        report(f"GRID {entry['width']}×{entry['height']} (target {entry['name']}, pool {p['synthesize']['pool_max']} "
+               f"frames)", [one_run(p, stores, entry, work) for _ in range(a.repeats)])
+
+    if a.only in (None, "720p"):
+        target = SHARED / "obama" / "obama_08.mp4"
+        base = copy.deepcopy(project)
+        base["ingest"]["crop_size"] = 448
+        base["frontalize"]["texture_size"] = 192
+        p = preprocess_target(target, base, ROOT / "bench" / "results" / "cache")
+        stores = synthesize.open_stores({**p, "pca": {"out": "/nonexistent"}})
+        entry = stores["frontalize"].attrs["videos"][0]
+        p["synthesize"].update(audio=a.audio, target=str(target), model=load_params(a.grid_params)["train"]["out"])
+        p["composite"]["diagnostic"] = False
+        report(f"720p {entry['width']}×{entry['height']} (target obama_08, its own {entry['n_frames']} frames)",
+               [one_run(p, stores, entry, work) for _ in range(a.repeats)])
+
+
+if __name__ == "__main__":
+    main()
