@@ -78,6 +78,8 @@ def speak(audio: str, target: str, out: str, params: dict, model: str | None = N
             raise BadInputError(path, f"{what} file not found")
     if not str(out).lower().endswith(".mp4"):
         raise ParameterError(f"--out {out}: expected an .mp4 file name")
+    from stages.train.predict import load_audio
+    load_audio(audio)                          # a bad audio file fails now, not after preprocessing
     p = preprocess_target(Path(target), params, cache or default_cache())
     p["synthesize"].update(audio=str(audio), target=str(Path(target).absolute()), retime=retime,
                            model=model or params["synthesize"]["model"])

@@ -1,0 +1,47 @@
+"""`lipsynth speak` refuses bad input with one line before doing any work (no model needed)."""
+import subprocess
+import sys
+
+import numpy as np
+
+from tests.conftest import ROOT, shared
+
+
+def speak(*args):
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", "speak", *map(str, args)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+
+
+def one_error_line(r):
+    lines = [l for l in r.stderr.strip().splitlines() if l.startswith("lipsynth: error")]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    return lines[0]
+
+
+def test_audio_without_an_audio_track_is_refused_before_preprocessing(tmp_path):
+    noaudio = shared("obama", "obama_noaudio.mp4")
+    target = shared("obama", "obama_08.mp4")
+    out = tmp_path / "o.mp4"
+    line = one_error_line(speak("--audio", noaudio, "--target", target, "--out", out, "--cache", tmp_path / "c"))
+    assert str(noaudio) in line and "no audio" in line
+    assert not out.exists() and not (tmp_path / "c").exists()       # the target was not preprocessed
+
+
+def test_missing_files_and_bad_output_names(tmp_path):
+    from tests.media_fixtures import make_clip
+    clip = tmp_path / "clip.mp4"
+    make_clip(clip, n_frames=30)
+    line = one_error_line(speak("--audio", tmp_path / "nope.wav", "--target", clip, "--out", tmp_path / "o.mp4"))
+    assert "nope.wav" in line and "not found" in line
+    line = one_error_line(speak("--audio", clip, "--target", clip, "--out", tmp_path / "o.avi"))
+    assert "o.avi" in line and ".mp4" in line
+
+
+def test_too_short_audio_is_refused(tmp_path):
+    from tests.media_fixtures import make_clip
+    short = tmp_path / "short.mp4"
+    make_clip(short, n_frames=5)                                     # 0.2 s
+    line = one_error_line(speak("--audio", short, "--target", short, "--out", tmp_path / "o.mp4",
+                                "--cache", tmp_path / "c"))
+    assert str(short) in line and "too short" in line
+    assert np.all([not p.name.startswith(".") for p in tmp_path.iterdir()])
