@@ -249,3 +249,19 @@ def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
     assert quality.mean_abs_difference(out_gray, ref_gray, box) > 3.0       # ... but it is a new mouth
     top = (0, 0, ref_gray.shape[2], int(ref_lm[ref_ok][:, 19, 1].min()) - 10)    # above the eyebrows
     assert quality.mean_abs_difference(out_gray, ref_gray, top) < 2.0      # the rest is the target
+
+
+@pytest.mark.slow
+def test_synthesize_stage_takes_a_video_file_outside_the_corpus(project, tmp_path):
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    clip = tmp_path / "new_take.mp4"
+    shutil.copy(project / "data" / "synthetic_speaker" / "speaker_02.mp4", clip)    # not known to the store by path
+    params["synthesize"].update(target=str(clip), out=str(tmp_path / "synth.zarr"), retime=False)
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    r = subprocess.run([sys.executable, "-m", "stages.synthesize.synthesize", "--params", str(tmp_path / "p.yaml")],
+                       cwd=project, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    g = zarr.open_group(str(tmp_path / "synth.zarr"))
+    assert g["texture"].shape[0] == 250 and g.attrs["target"]["path"] == str(clip)
+    assert list((tmp_path / "targets").iterdir())                     # preprocessed once, cached beside the store
+    assert np.array_equal(np.asarray(g["target_frame"][...]), np.arange(250))

@@ -136,9 +136,16 @@ def load_stores(params: dict, target: str) -> tuple[dict, dict]:
     """The stores that hold ``target`` (a corpus video name or path) and its index entry."""
     stores = open_stores(params)
     entry = find_video(stores["frontalize"].attrs["videos"], target)
+    if entry is None and Path(target).is_file():
+        # a video outside the corpus: preprocess it alone with the same settings (cached under store/targets)
+        from pipeline.speak import preprocess_target
+        tp = preprocess_target(Path(target), params, Path(params["synthesize"]["out"]).parent / "targets")
+        stores.update({k: open_group(tp[k]["out"]) for k in ("landmarks", "frontalize")})
+        stores["frontalize_path"] = str(Path(tp["frontalize"]["out"]).absolute())
+        entry = stores["frontalize"].attrs["videos"][0]
     if entry is None:
-        raise LipsynthError(f"synthesize.target={target!r}: not a video of the corpus in {params['frontalize']['out']} "
-                            "(use `lipsynth speak` for any video file)")
+        raise LipsynthError(f"synthesize.target={target!r}: neither a video of the corpus in "
+                            f"{params['frontalize']['out']} nor a video file")
     return stores, entry
 
 
