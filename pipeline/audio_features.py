@@ -112,3 +112,10 @@ def mfcc_features(samples: np.ndarray, sample_rate: int = SAMPLE_RATE) -> np.nda
     static = np.concatenate([ceps, energy[:, None]], axis=1)
     return np.concatenate([static, delta(static)], axis=1).astype(np.float32)
 
+
+
+def cmvn(features: np.ndarray) -> np.ndarray:
+    """Cepstral mean and variance normalisation over one utterance: (T, D) → (T, D) float32,
+    every dimension zero-mean, unit-variance over the T frames."""
+    x = np.asarray(features, np.float64)
+    return ((x - x.mean(0)) / np.maximum(x.std(0), 1e-6)).astype(np.float32)

@@ -59,3 +59,14 @@ def test_wrong_rate_or_shape_is_a_parameter_error():
         af.mfcc_features(np.zeros(100, np.float32), sample_rate=44100)
     with pytest.raises(ParameterError, match="mono"):
         af.mfcc_features(np.zeros((2, 100), np.float32))
+
+
+def test_cmvn_removes_a_per_dimension_channel_offset_and_gain():
+    from pipeline.audio_features import cmvn
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(500, 28)) * rng.uniform(0.5, 3, 28) + rng.normal(size=28) * 5
+    y = cmvn(x)
+    np.testing.assert_allclose(y.mean(0), 0, atol=1e-5)
+    np.testing.assert_allclose(y.std(0), 1, atol=1e-4)
+    other_channel = x * rng.uniform(0.5, 2.0, 28) + rng.normal(size=28) * 3     # e.g. a different microphone
+    np.testing.assert_allclose(cmvn(other_channel), y, atol=1e-4)

@@ -79,8 +79,12 @@ class Target:
 
 
 def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Target, p: dict,
-                    timing: dict | None = None) -> np.ndarray:
-    """One output frame: target frame j (H, W, 3) with the synthesized texture (T, T, 3) blended in."""
+                    timing: dict | None = None, inpainted: np.ndarray | None = None) -> np.ndarray:
+    """One output frame: target frame j (H, W, 3) with the synthesized texture (T, T, 3) blended in.
+
+    ``inpainted`` (T, T) uint8: how much (×255) of each synthesized pixel came from inpainted
+    clothing; those pixels are kept out of the neck layer.
+    """
     t0 = time.perf_counter()
     if not tgt.pose_ok[j]:
         return frame                                   # no face geometry for this frame: keep the target
@@ -88,6 +92,8 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     T = synth_rgb.shape[0]
     target_tex = tgt.texture(j)
     mouth, neck = layer_masks(lm, T, p["feather_px"], neck_depth=p["neck_depth"])
+    if inpainted is not None:
+        neck = neck * (1 - cv2.GaussianBlur(inpainted.astype(np.float32) / 255, (0, 0), 1.5))
     if p["colour_match"]:
         synth_rgb = colour_match(synth_rgb, target_tex, skin_region(lm, mouth))
     if p["jaw_correction"]:
@@ -155,13 +161,13 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
     timing: dict = {}
     t_start = time.perf_counter()
 
-    def work(frame, following, texture, j):
+    def work(frame, following, texture, j, inpainted):
         t: dict = {}
         if following is not None:
             t0 = time.perf_counter()
             frame = halfway_frame(frame, following)
             t["retime_flow"] = time.perf_counter() - t0
-        return frame, composite_frame(frame, texture, j, tgt, p, t), t
+        return frame, composite_frame(frame, texture, j, tgt, p, t, inpainted), t
 
     try:
         with media.VideoWriter(tmp, tgt.video["fps"], p["crf"], p["preset"], audio, sr) as w, \
@@ -187,11 +193,12 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
                     j = int(mapping[i])
                     if i % 256 == 0:
                         textures = np.asarray(synth["texture"][i:i + 256])
+                        inpainted = np.asarray(synth["inpainted"][i:i + 256])
                     t0 = time.perf_counter()
                     frame, following = background_frames(repeated, tgt, mapping, i)
                     timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
                     texture = textures[i % 256]
-                    pending.append((i, texture, pool.submit(work, frame, following, texture, j)))
+                    pending.append((i, texture, pool.submit(work, frame, following, texture, j, inpainted[i % 256])))
                     flush(2 * p["threads"])
                 flush(0)
         os.replace(tmp, out)

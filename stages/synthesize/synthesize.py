@@ -15,7 +15,9 @@ The candidate pool is the target video's usable frames; when the target has fewe
 ``pool_min`` of them, training frames of the corpus (same speaker) are added, up to
 ``pool_max`` (the paper's targets are minutes long; a 3 s clip alone cannot cover all shapes).
 
-Store ``store/synthesize.zarr``: texture (N, T, T, 3) uint8 RGB, target_frame (N,) int32 (frame
+Store ``store/synthesize.zarr``: texture (N, T, T, 3) uint8 RGB, inpainted (N, T, T) uint8 (share
+of the candidates' weight, ×255, for which a pixel was clothing inpainted by frontalize: the
+composite keeps such pixels out of the neck layer), target_frame (N,) int32 (frame
 of the target video shown at output frame i), repeated (N,) bool, lip_points (N, 18, 2)
 predicted, candidate_landmarks (N, 68, 2) weight-averaged landmarks of the candidates, sigma
 (N,); attrs: target (its index entry), frontalize_store, audio, fps, timing (ms/frame).
@@ -182,6 +184,7 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     pool = candidate_pool(stores, entry, p)
     flm = np.asarray(take(fr["frontal_landmarks"], pool), np.float64)
     pool_tex = take(fr["texture"], pool)     # (P, 3T/2, T) I420
+    pool_cloth = take(fr["clothing_mask"], pool)                      # (P, T, T) bool: inpainted pixels
     shapes = flm[:, LIP_POINTS]
     if p["retarget"] == "always" or (p["retarget"] == "auto" and not same_corpus):
         lips = retarget(lips, mouth["mean_shape"], shapes)
@@ -201,10 +204,14 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
 
     def one(i):
         rgb, info = tx.synthesize_texture(lips[i], shapes, lambda idx: pool_tex[idx], flm, p["n"], p["alpha"], proxies)
-        return rgb, info["landmarks"], info["sigma"], info["seconds"]
+        w = info["weights"] / info["weights"].sum()
+        cloth = np.tensordot(w.astype(np.float32), pool_cloth[info["indices"]].astype(np.float32), 1)
+        return rgb, info["landmarks"], info["sigma"], info["seconds"], np.round(cloth * 255).astype(np.uint8)
 
     with atomic_output(out) as tmp:
         g = create_group(tmp)
+        inpainted = g.create_array("inpainted", shape=(n_out, T, T), dtype="uint8", chunks=(8, T, T),
+                                   shards=(256, T, T))
         tex = g.create_array("texture", shape=(n_out, T, T, 3), dtype="uint8", chunks=(8, T, T, 3),
                              shards=(256, T, T, 3))
         cand = np.zeros((n_out, 68, 2), np.float32)
@@ -213,6 +220,7 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
             for a in tqdm(range(0, n_out, 256), desc="synthesize", unit="block", dynamic_ncols=True):
                 res = list(ex.map(one, range(a, min(a + 256, n_out))))
                 tex[a:a + len(res)] = np.stack([r[0] for r in res])
+                inpainted[a:a + len(res)] = np.stack([r[4] for r in res])
                 cand[a:a + len(res)] = [r[1] for r in res]
                 sig[a:a + len(res)] = [r[2] for r in res]
                 for r in res:

@@ -52,7 +52,10 @@ def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: flo
         raise ParameterError(f"--fps {fps}: expected a video frame rate between 1 and 240")
     dev = pick_device(device)
     model, config, arrays = load_model(model_dir, dev)
-    x = (audio_features.mfcc_features(samples) - arrays["feature_mean"]) / arrays["feature_std"]
+    x = audio_features.mfcc_features(samples)
+    if config.get("feature_norm", "corpus") == "utterance":
+        x = audio_features.cmvn(x)
+    x = (x - arrays["feature_mean"]) / arrays["feature_std"]
     chunk = int(chunk_seconds * 100) if chunk_seconds else None
     c100 = predict_sequence(model, x.astype(np.float32), config["delay"], dev, chunk)
     n = frame_count(len(samples), fps)

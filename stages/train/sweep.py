@@ -20,11 +20,11 @@ log = logging.getLogger("lipsynth.sweep")
 
 def run(params: dict, ingest_path: str, pca_path: str) -> list[dict]:
     from stages.train.lstm import pick_device
-    from stages.train.train import fit_lstm, load_sequences, normalisation, score
+    from stages.train.train import feature_normalisation, fit_lstm, load_sequences, score
     p, s = params["train"], params["delay_sweep"]
     data, basis, pattrs = load_sequences(ingest_path, pca_path)
     device = pick_device(p["device"])
-    mean, std = normalisation(data["train"])
+    mean, std = feature_normalisation(data, p["feature_norm"])
     rows = []
     for d in s["delays"]:
         _, hist, preds = fit_lstm(data, dict(p, epochs=s["epochs"]), d, device, mean, std, desc="sweep")

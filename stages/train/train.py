@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline import audio_features
 from pipeline.errors import LipsynthError, ParameterError
 from pipeline.runner import stage_main
 from pipeline.store import atomic_output, open_group
@@ -58,6 +59,23 @@ def normalisation(train: list[dict]) -> tuple[np.ndarray, np.ndarray]:
     return x.mean(0).astype(np.float32), np.maximum(x.std(0), 1e-6).astype(np.float32)
 
 
+def feature_normalisation(data: dict, how: str) -> tuple[np.ndarray, np.ndarray]:
+    """The (mean, std) the model's inputs are normalised with (saved in the model folder).
+
+    ``corpus`` (the paper): each MFCC dimension by its mean and variance over the training set.
+    ``utterance``: every video's features are first normalised over the video itself (CMVN, in
+    place in ``data``; prediction does the same over the new audio), then mean 0 / std 1.
+    """
+    if how == "corpus":
+        return normalisation(data["train"])
+    if how != "utterance":
+        raise ParameterError(f"train.feature_norm={how!r}: choose corpus or utterance")
+    for s in data["train"] + data["val"]:
+        s["x"] = audio_features.cmvn(s["x"])
+    d = data["train"][0]["x"].shape[1]
+    return np.zeros(d, np.float32), np.ones(d, np.float32)
+
+
 def fit_lstm(data: dict, p: dict, delay: int, device, mean, std, desc="lstm"):
     from stages.train import lstm
     norm = lambda s: ((s["x"] - mean) / std, s["y"], s["ok"])
@@ -80,7 +98,7 @@ def run(params: dict, ingest_path: str, pca_path: str) -> dict:
         raise ParameterError(f"train.model={p['model']!r}: choose one of {', '.join(MODELS)}")
     data, basis, pattrs = load_sequences(ingest_path, pca_path)
     device = pick_device(p["device"])
-    mean, std = normalisation(data["train"])
+    mean, std = feature_normalisation(data, p["feature_norm"])
     log.info("training %s on %d videos (%d steps), validating on %d videos, device %s", p["model"],
              len(data["train"]), sum(len(s["x"]) for s in data["train"]), len(data["val"]), device)
     model, history, preds = fit_lstm(data, p, p["delay"], device, mean, std)
@@ -103,7 +121,7 @@ def run(params: dict, ingest_path: str, pca_path: str) -> dict:
     with atomic_output(p["out"]) as tmp:
         save_model(tmp, model, dict(model=p["model"], delay=p["delay"], hidden=p["hidden"], layers=p.get("layers", 1),
                                     n_features=int(mean.shape[0]), n_components=k, feature_rate=100.0,
-                                    params=p), mean, std, basis, pattrs)
+                                    feature_norm=p["feature_norm"], params=p), mean, std, basis, pattrs)
     write_outputs(metrics, curves, p)
     return metrics
 
