@@ -107,13 +107,15 @@ def main(argv=None) -> int:
                     help="keep the target's timing (paper §3.3 off; for evaluation against ground truth)")
     ap.add_argument("--diagnostic", action="store_true",
                     help="also write OUT.diagnostic.mp4: target | result | synthesized texture")
-    ap.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    ap.add_argument("--params", default=None,
+                    help="params file (default: ./params.yaml, else the one installed with lipsynth)")
     ap.add_argument("--cache", type=Path, default=None,
                     help=f"folder for preprocessed targets (default: {default_cache()})")
     ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     a = ap.parse_args(argv)
     setup_logging(a.verbose)
-    return run_main(lambda: speak(a.audio, a.target, a.out, load_params(a.params), a.model,
+    params = a.params or ("params.yaml" if Path("params.yaml").is_file() else Path(__file__).parents[1] / "params.yaml")
+    return run_main(lambda: speak(a.audio, a.target, a.out, load_params(params), a.model,
                                   not a.no_retime, a.cache, a.diagnostic))
 
 
