@@ -27,6 +27,7 @@ import tempfile
 from pathlib import Path
 
 from pipeline.errors import BadInputError, ParameterError
+from pipeline.parallel import client_for
 from pipeline.params import load_params
 from pipeline.runner import run_main, setup_logging
 
@@ -61,9 +62,12 @@ def preprocess_target(video: Path, params: dict, cache: Path) -> dict:
         log.info("target %s: preprocessed stores found in %s", video, folder)
         return p
     log.info("target %s: preprocessing into %s (ingest → landmarks → frontalize)", video, folder)
-    ingest.run(p, p["ingest"]["out"])
-    landmarks.run(p, p["ingest"]["out"], p["landmarks"]["out"])
-    frontalize.run(p, p["ingest"]["out"], p["landmarks"]["out"], p["frontalize"]["out"])
+    run = copy.deepcopy(p)
+    with client_for(p["cluster"]) as client:          # one cluster for the three stages
+        run["cluster"]["address"] = client.scheduler.address
+        ingest.run(run, p["ingest"]["out"])
+        landmarks.run(run, p["ingest"]["out"], p["landmarks"]["out"])
+        frontalize.run(run, p["ingest"]["out"], p["landmarks"]["out"], p["frontalize"]["out"])
     return p
 
 
