@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.errors import LipsynthError
+from pipeline.errors import LipsynthError, ParameterError
 from pipeline.geometry import euler_degrees
 from pipeline.runner import stage_main
 from pipeline.store import atomic_output, create_group, open_group, take
@@ -164,6 +164,8 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     t0 = t_start = time.perf_counter()
     samples = load_audio(p["audio"])
     mouth = predict_mouth(samples, p["model"], entry["fps"], device=p["device"])
+    if p["retarget"] not in ("auto", "always", "never"):
+        raise ParameterError(f"synthesize.retarget={p['retarget']!r}: choose auto, always or never")
     same_corpus = "pca" in stores and mouth["pca_fingerprint"] == stores["pca"].attrs["fingerprint"]
     lips = mouth["lip_points"].astype(np.float64)
     store_iod = IOD_MM / fr.attrs["texture_window"]["mm_per_px"]
@@ -189,7 +191,13 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     if p["retarget"] == "always" or (p["retarget"] == "auto" and not same_corpus):
         lips = retarget(lips, mouth["mean_shape"], shapes)
     up, lo = p["teeth_upper"], p["teeth_lower"]
-    to_pool = lambda j: None if j is None else int(np.flatnonzero(pool == entry["first_frame"] + j)[0])
+    def to_pool(j):
+        hit = np.flatnonzero(pool == entry["first_frame"] + j) if j is not None else None
+        if j is not None and not len(hit):
+            raise ParameterError(f"synthesize.teeth_upper/teeth_lower={j}: frame {j} of {entry['name']} is not a "
+                                 f"usable frame of the candidate pool (0 … {entry['n_frames'] - 1}, tracked face)")
+        return None if j is None else int(hit[0])
+
     pose = np.asarray(take(fr["pose"], pool), np.float64)
     yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
     upper, lower = tx.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
