@@ -115,7 +115,7 @@ def main() -> None:
         base["ingest"]["crop_size"] = 448
         base["frontalize"]["texture_size"] = 192
         p = preprocess_target(target, base, ROOT / "bench" / "results" / "cache")
-        stores = synthesize.open_stores({**p, "pca": {"out": "/nonexistent"}})
+        stores = synthesize.open_stores(p, pca=False)
         entry = stores["frontalize"].attrs["videos"][0]
         p["synthesize"].update(audio=a.audio, target=str(target), model=load_params(a.grid_params)["train"]["out"])
         p["composite"]["diagnostic"] = False

@@ -113,7 +113,6 @@ def mfcc_features(samples: np.ndarray, sample_rate: int = SAMPLE_RATE) -> np.nda
     return np.concatenate([static, delta(static)], axis=1).astype(np.float32)
 
 
-
 def cmvn(features: np.ndarray) -> np.ndarray:
     """Cepstral mean and variance normalisation over one utterance: (T, D) → (T, D) float32,
     every dimension zero-mean, unit-variance over the T frames."""

@@ -74,7 +74,6 @@ def preprocess_target(video: Path, params: dict, cache: Path) -> dict:
 def speak(audio: str, target: str, out: str, params: dict, model: str | None = None, retime: bool = True,
           cache: Path | None = None, diagnostic: bool = False) -> dict:
     """Write ``out`` (MP4): the speaker of ``target`` saying ``audio``. Returns ms/frame per phase."""
-    from pipeline.store import open_group
     from stages.composite import composite
     from stages.synthesize import synthesize
     for path, what in ((audio, "audio"), (target, "target video")):
@@ -88,8 +87,7 @@ def speak(audio: str, target: str, out: str, params: dict, model: str | None = N
     p["synthesize"].update(audio=str(audio), target=str(Path(target).absolute()), retime=retime,
                            model=model or params["synthesize"]["model"])
     p["composite"]["diagnostic"] = diagnostic
-    stores = {k: open_group(p[k]["out"]) for k in ("landmarks", "frontalize")}
-    stores["frontalize_path"] = str(Path(p["frontalize"]["out"]).absolute())
+    stores = synthesize.open_stores(p, pca=False)
     entry = stores["frontalize"].attrs["videos"][0]
     work = Path(tempfile.mkdtemp(prefix=".lipsynth-speak-", dir=Path(out).absolute().parent))
     try:

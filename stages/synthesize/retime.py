@@ -440,6 +440,18 @@ def extend_by_ping_pong(n_target: int, n_needed: int) -> np.ndarray:
 
 # ---------------------------------------------------------------- repeated-frame interpolation
 
+def repeat_partners(mapping: np.ndarray) -> np.ndarray:
+    """(N,) int: for an output frame that repeats its predecessor's target frame and is followed
+    by a different one, that following target frame (the half-way partner, §3.3 end); −1 for
+    every other frame (shown as its target frame unchanged, a trailing repeat included)."""
+    idx = np.asarray(mapping, np.int64).ravel()
+    out = np.full(idx.size, -1, np.int64)
+    if idx.size > 2:
+        rep = (idx[1:-1] == idx[:-2]) & (idx[2:] != idx[1:-1])
+        out[1:-1][rep] = idx[2:][rep]
+    return out
+
+
 def interpolate_repeats(source: FrameSource, mapping: np.ndarray) -> Iterator[np.ndarray]:
     """Yield the N output frames, a repeated frame replaced by the half-way frame (§3.3 end).
 
@@ -469,12 +481,12 @@ def interpolate_repeats(source: FrameSource, mapping: np.ndarray) -> Iterator[np
             cache[j] = _check_image(get(j), j)
         return cache[j]
 
+    partner = repeat_partners(idx)
     for i, j in enumerate(idx.tolist()):
         for done in [k for k in cache if k < j]:
             del cache[done]
-        repeat = 0 < i < idx.size - 1 and j == idx[i - 1] and idx[i + 1] != j
-        if repeat:
-            yield halfway_frame(fetch(j), fetch(int(idx[i + 1])), flow)
+        if partner[i] >= 0:
+            yield halfway_frame(fetch(j), fetch(int(partner[i])), flow)
         else:
             yield fetch(j).copy()
 

@@ -125,12 +125,13 @@ def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray,
     return mapping, repeated
 
 
-def open_stores(params: dict) -> dict:
-    """The corpus stores synthesize reads (landmarks, frontalize, pca) and the frontalize path."""
+def open_stores(params: dict, pca: bool = True) -> dict:
+    """The stores synthesize reads (landmarks, frontalize, and pca when asked and present) and
+    the frontalize path."""
     stores = {k: open_group(params[k]["out"]) for k in ("landmarks", "frontalize")}
-    if Path(params["pca"]["out"]).is_dir():            # only to check the model's PCA basis
-        stores["pca"] = open_group(params["pca"]["out"])
     stores["frontalize_path"] = str(Path(params["frontalize"]["out"]).absolute())
+    if pca and Path(params["pca"]["out"]).is_dir():    # only to check the model's PCA basis
+        stores["pca"] = open_group(params["pca"]["out"])
     return stores
 
 
@@ -142,8 +143,7 @@ def load_stores(params: dict, target: str) -> tuple[dict, dict]:
         # a video outside the corpus: preprocess it alone with the same settings (cached under store/targets)
         from pipeline.speak import preprocess_target
         tp = preprocess_target(Path(target), params, Path(params["synthesize"]["out"]).parent / "targets")
-        stores.update({k: open_group(tp[k]["out"]) for k in ("landmarks", "frontalize")})
-        stores["frontalize_path"] = str(Path(tp["frontalize"]["out"]).absolute())
+        stores.update(open_stores(tp, pca=False))
         entry = stores["frontalize"].attrs["videos"][0]
     if entry is None:
         raise LipsynthError(f"synthesize.target={target!r}: neither a video of the corpus in "
@@ -156,9 +156,9 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     if stores is None:
         stores, entry = load_stores(params, p["target"])
     fr, lmg = stores["frontalize"], stores["landmarks"]
-    if entry.get("excluded") or not len(usable(fr, lmg, entry)) or \
-            len(usable(fr, lmg, entry)) < p["min_target_fraction"] * entry["n_frames"]:
-        raise LipsynthError(f"{entry['path']}: target has a tracked face in only {len(usable(fr, lmg, entry))} of "
+    n_usable = len(usable(fr, lmg, entry))
+    if entry.get("excluded") or not n_usable or n_usable < p["min_target_fraction"] * entry["n_frames"]:
+        raise LipsynthError(f"{entry['path']}: target has a tracked face in only {n_usable} of "
                             f"{entry['n_frames']} frames (synthesize.min_target_fraction={p['min_target_fraction']})")
     timing: dict = {}
     t0 = t_start = time.perf_counter()
