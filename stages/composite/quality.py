@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-LIPS = np.arange(48, 68)
+from pipeline.face import MOUTH as LIPS, interocular  # noqa: F401  (interocular: part of this API)
+
 INNER_TOP, INNER_BOTTOM = [61, 62, 63], [67, 66, 65]
 
 
@@ -22,11 +23,6 @@ def video_landmarks(path, landmark_params: dict) -> tuple[np.ndarray, np.ndarray
     grays = np.stack([np.ascontiguousarray(g) for _, g in media.iter_frames(path, "gray")])
     lms, _, valid, _ = track_video(grays, landmark_params)
     return grays, lms.astype(np.float64), valid
-
-
-def interocular(lms: np.ndarray) -> np.ndarray:
-    """(N,) outer eye-corner distance (landmarks 36–45), px."""
-    return np.linalg.norm(lms[:, 45] - lms[:, 36], axis=-1)
 
 
 def mouth_error(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
