@@ -56,15 +56,29 @@ def predict_landmarks(gray: np.ndarray, box) -> np.ndarray:
     return np.array([(p.x, p.y) for p in s.parts()], np.float32)
 
 
-# iBUG 68-point groups
+# ---------------------------------------------------------------- iBUG 68-point index sets
+# "Right" and "left" are the subject's: the subject's right eye (36–41) is on the image's left.
 JAW = slice(0, 17)
 BROWS = slice(17, 27)
 NOSE = slice(27, 36)
 EYES = slice(36, 48)
-MOUTH = slice(48, 68)
-LEFT_EYE_OUTER, RIGHT_EYE_OUTER = 36, 45
+RIGHT_EYE = slice(36, 42)               # subject's right eye = image left
+LEFT_EYE = slice(42, 48)                # subject's left eye = image right
+MOUTH = slice(48, 68)                   # outer lip 48–59, inner lip 60–67
+RIGHT_EYE_OUTER, LEFT_EYE_OUTER = 36, 45
+OUTER_LIP = slice(48, 60)
+INNER_LIP = slice(60, 68)
+
+# The paper's 18 lip fiducials (paper 000 §3.1): outer lip 48–59 and inner lip 61–63, 65–67 (the
+# inner corners 60 and 64 duplicate the outer corners' motion and are left out).
+LIP_POINTS = list(range(48, 60)) + [61, 62, 63, 65, 66, 67]
+INNER_TOP, INNER_BOTTOM = 62, 66        # inner-lip midpoints: their distance is the mouth opening
+
+# The canonical face is scaled so that the outer eye corners are IOD_MM apart (a typical adult
+# outer-canthal width); the frontal texture window is given in these millimetres.
+IOD_MM = 90.0
 
 
 def interocular(lm: np.ndarray) -> np.ndarray:
-    """Outer-eye-corner distance of (..., 68, 2) landmarks → (...)."""
-    return np.linalg.norm(lm[..., RIGHT_EYE_OUTER, :] - lm[..., LEFT_EYE_OUTER, :], axis=-1)
+    """Outer-eye-corner distance of (..., 68, 2) landmarks → (...), same units as ``lm``."""
+    return np.linalg.norm(lm[..., LEFT_EYE_OUTER, :] - lm[..., RIGHT_EYE_OUTER, :], axis=-1)

@@ -15,12 +15,12 @@ log = logging.getLogger("lipsynth.parallel")
 
 
 @contextlib.contextmanager
-def client_for(cluster: dict):
+def client_for(cluster):
     """Yield a ``distributed.Client``.
 
     Parameters
     ----------
-    cluster : dict
+    cluster : pipeline.params.Cluster
         ``address`` (str or None): a running scheduler (``tcp://host:8786``); None starts a
         LocalCluster with ``n_workers`` (None → one per core) single-threaded worker processes.
     """
@@ -28,16 +28,16 @@ def client_for(cluster: dict):
 
     for name in ("distributed", "tornado", "bokeh"):
         logging.getLogger(name).setLevel(logging.WARNING)
-    address = cluster.get("address")
+    address = cluster.address
     if address:
         log.info("connecting to dask scheduler %s", address)
-        with Client(address, timeout=cluster.get("connect_timeout", 30)) as c:
+        with Client(address, timeout=cluster.connect_timeout) as c:
             yield c
         return
-    n = cluster.get("n_workers") or os.cpu_count() or 1
+    n = cluster.n_workers or os.cpu_count() or 1
     log.info("starting LocalCluster with %d worker processes", n)
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                      memory_limit=cluster.get("memory_limit", "auto"),
+                      memory_limit=cluster.memory_limit,
                       dashboard_address=None, silence_logs=logging.WARNING) as lc, Client(lc) as c:
         yield c
 

@@ -1,8 +1,10 @@
 """Common entry-point plumbing: logging, one-line errors, non-zero exit codes."""
 from __future__ import annotations
 
+import json
 import logging
 import sys
+from pathlib import Path
 
 from .errors import LipsynthError
 
@@ -22,6 +24,17 @@ def run_main(fn, *args, **kwargs) -> int:
         print(f"lipsynth: error: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def write_timing(stage: str, ms_per_frame: dict, folder: str = "logs") -> Path:
+    """Write a stage's per-phase timing (ms per frame) to ``logs/<stage>.timing.json``.
+
+    Timings differ from run to run, so they never go into a DVC-tracked output or metric.
+    """
+    path = Path(folder) / f"{stage}.timing.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({k: round(v, 2) for k, v in ms_per_frame.items()}, indent=2) + "\n")
+    return path
 
 
 def stage_main(prog: str, doc: str, run, argv=None) -> int:

@@ -5,6 +5,10 @@ frame axis: the videos of the corpus are concatenated in index order, and the pe
 (``attrs["videos"]``) says where each video starts. Arrays are sharded along time so that DVC
 hashes few files and so that one dask task writes whole shards (no two tasks touch a shard).
 
+Stores record no machine-specific value: paths are relative to the project root
+(``project_path``) and timings stay out of them, so the same inputs give the same bytes and DVC
+hashes wherever the project is checked out.
+
 A stage writes into ``<out>.tmp-<pid>`` and renames it onto ``<out>`` when everything
 succeeded (``atomic_output``), so a failed run never leaves a half-written store.
 """
@@ -45,6 +49,13 @@ def atomic_output(out: str | os.PathLike):
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.replace(tmp, out)
+
+
+def project_path(path: str | os.PathLike) -> str:
+    """``path`` as stores record it: relative to the project root (the working directory stages
+    run in), with forward slashes, so that a store's bytes do not depend on where the project
+    folder is. Files outside the project keep a relative path too (``../shared/...``)."""
+    return Path(os.path.relpath(Path(path).absolute(), Path.cwd())).as_posix()
 
 
 def create_group(path, attrs: dict | None = None) -> zarr.Group:

@@ -33,3 +33,14 @@ def face3d():
     box, _ = face.detect_faces(gray)[0]
     mean2d = model3d.mean_shape_2d(face.predict_landmarks(gray, box)[None].astype(float))
     return model3d._to_canonical(model3d.prior_shape(mean2d))
+
+
+@pytest.fixture(scope="session")
+def grid_preprocessed(tmp_path_factory):
+    """12 GRID s1 clips through ingest → landmarks → frontalize (once per session): its folder
+    holds ingest.zarr, landmarks.zarr, frontalize.zarr and params.yaml."""
+    from tests.stage_runner import make_params, run_preprocessing
+    clips = sorted(shared("grid_s1", "video").glob("*.mp4"))[:12]
+    out = tmp_path_factory.mktemp("grid12")
+    run_preprocessing(make_params(out, [str(c) for c in clips]))
+    return out

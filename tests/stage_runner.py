@@ -1,21 +1,22 @@
 """Run the preprocessing stages in-process on a corpus, with outputs under a temporary folder."""
-import copy
-
 import yaml
 
-from pipeline.params import load_params
+from pipeline.params import as_dict, load_params
 from tests.conftest import ROOT
 
 
 def make_params(tmp_path, videos, cluster=None, **sections):
-    params = copy.deepcopy(load_params(ROOT / "params.yaml"))
-    params["data"]["videos"] = videos
+    """The project's params with ``data.videos`` = videos and the preprocessing outputs in tmp_path."""
+    params = load_params(ROOT / "params.yaml")
+    params.data.videos = videos
     for stage in ("ingest", "landmarks", "frontalize"):
-        params[stage]["out"] = str(tmp_path / f"{stage}.zarr")
-    params["cluster"].update(cluster or {})
+        getattr(params, stage).out = str(tmp_path / f"{stage}.zarr")
+    for k, v in (cluster or {}).items():
+        setattr(params.cluster, k, v)
     for name, overrides in sections.items():
-        params[name].update(overrides)
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
+        for k, v in overrides.items():
+            setattr(getattr(params, name), k, v)
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(as_dict(params)))
     return params
 
 
@@ -24,8 +25,8 @@ def run_preprocessing(params, stages=("ingest", "landmarks", "frontalize")):
     from stages.ingest import ingest
     from stages.landmarks import landmarks
     if "ingest" in stages:
-        ingest.run(params, params["ingest"]["out"])
+        ingest.run(params, params.ingest.out)
     if "landmarks" in stages:
-        landmarks.run(params, params["ingest"]["out"], params["landmarks"]["out"])
+        landmarks.run(params, params.ingest.out, params.landmarks.out)
     if "frontalize" in stages:
-        frontalize.run(params, params["ingest"]["out"], params["landmarks"]["out"], params["frontalize"]["out"])
+        frontalize.run(params, params.ingest.out, params.landmarks.out, params.frontalize.out)

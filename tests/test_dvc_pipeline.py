@@ -13,6 +13,7 @@ import pytest
 import yaml
 import zarr
 
+from pipeline.params import load_params
 from tests.conftest import ROOT
 
 
@@ -28,7 +29,7 @@ def dvc(proj, *args):
 def project(tmp_path_factory):
     """A copy of the project's pipeline with a tiny synthetic corpus, reproduced once."""
     proj = tmp_path_factory.mktemp("dvcproj")
-    for name in ("pipeline", "stages"):
+    for name in ("pipeline", "stages", "lipsynth"):
         shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
     for name in ("dvc.yaml", ".dvcignore"):
         shutil.copy(ROOT / name, proj / name)
@@ -43,6 +44,7 @@ def project(tmp_path_factory):
     out = dvc(proj, "repro")
     for stage in STAGES:
         assert f"Running stage '{stage}'" in out
+    shutil.copy(proj / "dvc.lock", proj / "dvc.lock.first")      # later tests edit params and re-run
     return proj
 
 
@@ -110,7 +112,7 @@ def test_training_learns_and_beats_the_mean_shape(project):
 @pytest.mark.slow
 def test_predict_mouth_cli_on_a_synthetic_clip(project, tmp_path):
     clip = project / "data" / "synthetic_speaker" / "speaker_00.mp4"
-    r = subprocess.run([sys.executable, "-m", "stages.train.predict", str(clip), "--model", str(project / "models" / "lstm"),
+    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "predict-mouth", str(clip), "--model", str(project / "models" / "lstm"),
                         "--fps", "29.97", "--out", str(tmp_path / "m.npz"), "--chunk-seconds", "1.5"],
                        cwd=project, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
@@ -142,9 +144,8 @@ def test_cluster_param_invalidates_nothing(project):
 
 def opening_of(video, project):
     """Inner-lip opening per frame of a video, from the pipeline's own landmark tracker."""
-    from stages.composite import quality
-    params = yaml.safe_load((project / "params.yaml").read_text())
-    _, lms, valid = quality.video_landmarks(video, params["landmarks"])
+    from lipsynth import lipsync_quality as quality
+    _, lms, valid = quality.video_landmarks(video, load_params(project / "params.yaml").landmarks)
     assert valid.mean() > 0.9, f"{video}: a face on only {valid.mean():.0%} of the frames"
     return quality.inner_opening(lms), valid
 
@@ -162,8 +163,8 @@ def test_repro_ends_with_a_lip_synced_mp4_of_the_synthetic_speaker(project):
         n = sum(1 for _ in c.decode(video=0))
     assert n == 250                                              # the 10 s audio at the target's 25 fps
     assert (out.parent / "result.diagnostic.mp4").exists()
-    metrics = json.loads((project / "metrics" / "composite.json").read_text())
-    assert set(metrics["ms_per_frame"]) >= {"decode", "flow", "render_back", "blend", "encode"}
+    timing = json.loads((project / "logs" / "composite.timing.json").read_text())     # untracked, outside DVC
+    assert set(timing) >= {"decode", "flow", "render_back", "blend", "encode"}
     # lip sync: the output mouth follows the mouth the audio was spoken with (speaker_03's truth),
     # not the target's own (speaker_00)
     opening, valid = opening_of(out, project)
@@ -184,7 +185,7 @@ def write_wav(path, samples, rate, channels=1):
 
 
 def speak(project, tmp_path, *args):
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", "speak", "--model", str(project / "models" / "lstm"),
+    return subprocess.run([sys.executable, "-m", "lipsynth.cli", "speak", "--model", str(project / "models" / "lstm"),
                            "--cache", str(tmp_path / "cache"), *map(str, args)],
                           cwd=project, capture_output=True, text=True, timeout=600)
 
@@ -229,17 +230,17 @@ def test_speak_refuses_a_target_without_a_face_and_keeps_the_old_output(project,
 def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
     """HDTF footage (512², 25 fps) as target, radio speech (16 kHz stereo WAV) as audio, the
     synthetic speaker's model (re-targeted onto the real mouth): only the lower face changes."""
+    from lipsynth import lipsync_quality as quality
     from tests.conftest import shared
-    from stages.composite import quality
     target = shared("hdtf", "WDA_KatieHill_000.mp4")
     audio = shared("hdtf", "RD_Radio36_000.wav")
     out = tmp_path / "katie.mp4"
     r = speak(project, tmp_path, "--audio", audio, "--target", target, "--out", out, "--no-retime")
     assert r.returncode == 0, r.stderr
     assert "re-targeting predicted mouth shapes" in r.stderr
-    params = yaml.safe_load((project / "params.yaml").read_text())
-    out_gray, out_lm, out_ok = quality.video_landmarks(out, params["landmarks"])
-    ref_gray, ref_lm, ref_ok = quality.video_landmarks(target, params["landmarks"])
+    landmarks = load_params(project / "params.yaml").landmarks
+    out_gray, out_lm, out_ok = quality.video_landmarks(out, landmarks)
+    ref_gray, ref_lm, ref_ok = quality.video_landmarks(target, landmarks)
     assert len(out_gray) == 200 and out_ok.mean() > 0.9            # 8 s at 25 fps, still a face
     ok = out_ok & ref_ok
     iod = np.median(quality.interocular(ref_lm[ok]))
@@ -252,16 +253,49 @@ def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
 
 
 @pytest.mark.slow
-def test_synthesize_stage_takes_a_video_file_outside_the_corpus(project, tmp_path):
+def test_synthesize_stage_takes_only_corpus_targets(project, tmp_path):
+    """The DVC stage reads declared inputs only: a video file as target is refused (with the way
+    out: lipsynth speak), and nothing is preprocessed behind DVC's back."""
     params = yaml.safe_load((project / "params.yaml").read_text())
     clip = tmp_path / "new_take.mp4"
-    shutil.copy(project / "data" / "synthetic_speaker" / "speaker_02.mp4", clip)    # not known to the store by path
-    params["synthesize"].update(target=str(clip), out=str(tmp_path / "synth.zarr"), retime=False)
+    shutil.copy(project / "data" / "synthetic_speaker" / "speaker_02.mp4", clip)
+    params["synthesize"].update(target=str(clip), out=str(tmp_path / "synth.zarr"))
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
     r = subprocess.run([sys.executable, "-m", "stages.synthesize.synthesize", "--params", str(tmp_path / "p.yaml")],
                        cwd=project, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr
-    g = zarr.open_group(str(tmp_path / "synth.zarr"))
-    assert g["texture"].shape[0] == 250 and g.attrs["target"]["path"] == str(clip)
-    assert list((tmp_path / "targets").iterdir())                     # preprocessed once, cached beside the store
-    assert np.array_equal(np.asarray(g["target_frame"][...]), np.arange(250))
+    assert r.returncode == 2, r.stderr
+    assert "not a video of the corpus" in r.stderr and "lipsynth speak" in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new_take.mp4", "p.yaml"]
+    assert not (project / "store" / "targets").exists()
+
+
+@pytest.mark.slow
+def test_preprocessing_hashes_equal_the_committed_dvc_lock(project):
+    """A fresh run of the default pipeline reproduces the committed dvc.lock for preprocessing: the
+    stores hold nothing machine-specific (paths are project-relative, no timings)."""
+    ours = yaml.safe_load((project / "dvc.lock.first").read_text())["stages"]
+    committed = yaml.safe_load((ROOT / "dvc.lock").read_text())["stages"]
+    for stage in ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca"):
+        assert ours[stage]["outs"] == committed[stage]["outs"], stage
+
+
+@pytest.mark.slow
+def test_a_library_change_reruns_exactly_the_stages_that_import_it(project):
+    """Code deps are derived from imports: pipeline/repeats.py is used by composite only."""
+    status = lambda: set(json.loads(dvc(project, "status", "--json").strip().splitlines()[-1]))
+    before = status()
+    path = project / "pipeline" / "repeats.py"
+    text = path.read_text()
+    path.write_text(text + "\n# touched\n")
+    try:
+        assert status() - before == {"composite"}
+        geometry = project / "pipeline" / "geometry.py"
+        g = geometry.read_text()
+        geometry.write_text(g + "\n# touched\n")
+        try:
+            assert {"frontalize", "synthesize", "composite"} <= status()
+            assert not {"ingest", "landmarks"} & status()
+        finally:
+            geometry.write_text(g)
+    finally:
+        path.write_text(text)

@@ -5,7 +5,8 @@ import skimage.data
 
 from pipeline.geometry import intrinsics, project
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
-from stages.frontalize.warp import Surface, TextureWindow, frontal_landmarks, frontal_texture
+from pipeline.canonical import Surface, TextureWindow, frontal_landmarks
+from stages.frontalize.warp import frontal_texture
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import yaml
 
 from pipeline import media
 from pipeline.errors import BadInputError
-from pipeline.params import load_params
+from pipeline.params import as_dict, load_params
 from stages.ingest.ingest import decode_video, layout, list_videos, probe_video, split_videos
 from tests.conftest import ROOT, shared
 from tests.media_fixtures import face_frames, make_clip
@@ -18,7 +18,7 @@ from tests.media_fixtures import face_frames, make_clip
 
 @pytest.fixture
 def ingest_params():
-    return load_params(ROOT / "params.yaml")["ingest"]
+    return load_params(ROOT / "params.yaml").ingest
 
 
 def run_one(path, params, tmp_path):
@@ -108,10 +108,10 @@ def test_bad_inputs_name_file_and_problem(tmp_path, ingest_params):
 def test_real_video_without_audio_fails_cleanly_through_the_cli(tmp_path):
     noaudio = shared("obama", "obama_noaudio.mp4")
     params = load_params(ROOT / "params.yaml")
-    params["data"]["videos"] = str(noaudio)
-    params["ingest"]["out"] = str(tmp_path / "ingest.zarr")
-    params["cluster"]["n_workers"] = 1
-    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    params.data.videos = str(noaudio)
+    params.ingest.out = str(tmp_path / "ingest.zarr")
+    params.cluster.n_workers = 1
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(as_dict(params)))
     r = subprocess.run([sys.executable, "-m", "stages.ingest.ingest", "--params", str(tmp_path / "p.yaml")],
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2

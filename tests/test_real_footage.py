@@ -3,6 +3,8 @@ import numpy as np
 import pytest
 import zarr
 
+from pipeline.face import IOD_MM
+
 from tests.conftest import shared
 from tests.stage_runner import make_params, run_preprocessing
 
@@ -17,7 +19,7 @@ def check_corpus(out):
         in_video[v["first_frame"]:v["first_frame"] + v["n_frames"]] = True
     valid = np.asarray(lm["valid"][...])[in_video]
     assert valid.mean() >= 0.98, f"landmarks valid on only {100 * valid.mean():.1f}% of frames"
-    iod_px = 90.0 / fr.attrs["texture_window"]["mm_per_px"]      # the model's IOD in texture pixels
+    iod_px = IOD_MM / fr.attrs["texture_window"]["mm_per_px"]      # the model's IOD in texture pixels
     flm = np.asarray(fr["frontal_landmarks"][...])
     ok = np.asarray(fr["pose_valid"][...])
     assert ok[in_video].mean() >= 0.98
@@ -33,11 +35,8 @@ def check_corpus(out):
 
 @pytest.mark.real
 @pytest.mark.slow
-def test_grid_s1_clips(tmp_path):
-    clips = sorted(shared("grid_s1", "video").glob("*.mp4"))[:12]
-    params = make_params(tmp_path, [str(c) for c in clips])
-    run_preprocessing(params)
-    spreads = check_corpus(tmp_path)
+def test_grid_s1_clips(grid_preprocessed):
+    spreads = check_corpus(grid_preprocessed)
     assert len(spreads) == 12
 
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from pipeline.errors import ParameterError
-from stages.synthesize.retime import (blink_flags, extend_by_ping_pong, eye_area, interpolate_repeats,
-                                      motion_speed, retime, speech_flags)
+from pipeline.repeats import interpolate_repeats
+from stages.synthesize.retime import blink_flags, extend_by_ping_pong, eye_area, motion_speed, retime, speech_flags
 
 
 # ---------------------------------------------------------------- retime

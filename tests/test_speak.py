@@ -8,7 +8,7 @@ from tests.conftest import ROOT, shared
 
 
 def speak(*args):
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", "speak", *map(str, args)], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "lipsynth.cli", "speak", *map(str, args)], cwd=ROOT,
                           capture_output=True, text=True, timeout=120)
 
 

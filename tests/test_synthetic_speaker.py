@@ -1,4 +1,4 @@
-"""Properties of the synthetic talking-head corpus (stages/synthetic_speaker/generate.py)."""
+"""Properties of the synthetic talking-head corpus (stages/synthetic_speaker/)."""
 from __future__ import annotations
 
 import os
@@ -14,6 +14,7 @@ import pytest
 from pipeline import face
 from scipy.ndimage import uniform_filter1d
 
+from stages.synthetic_speaker import articulation, face_template, language, render
 from stages.synthetic_speaker import generate as gen
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,7 +25,7 @@ BILABIALS = ("m", "b", "p")
 
 @pytest.fixture(scope="module")
 def template():
-    return gen.build_template(WIDTH, HEIGHT)
+    return face_template.build_template(WIDTH, HEIGHT)
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +72,8 @@ def test_generator_is_deterministic(template, script):
         np.testing.assert_array_equal(getattr(script, field), getattr(again, field))
     for t in (0, 37, 81):
         args = (script.landmarks[t].astype(float), float(script.closure[t]), script.pose[t].astype(float))
-        np.testing.assert_array_equal(gen.render_frame(template, *args), gen.render_frame(template, *args))
+        np.testing.assert_array_equal(render.render_frame(template, *args),
+                                      render.render_frame(template, *args))
     other = gen.script_video(template, seed=7, video_index=1, seconds=SECONDS, fps=FPS, sample_rate=RATE)
     assert not np.array_equal(other.audio, script.audio)
 
@@ -80,7 +82,7 @@ def test_phone_sequence_tiles_the_clip_with_pauses(script):
     phones = script.phones
     assert phones["start"][0] == 0.0 and phones["end"][-1] == SECONDS
     np.testing.assert_array_equal(phones["start"][1:], phones["end"][:-1])
-    assert set(phones["label"]) <= set(gen.PHONES)
+    assert set(phones["label"]) <= set(language.PHONES)
     assert phones["label"][0] == "sil" and phones["label"][-1] == "sil"
     inner_pauses = phones[1:-1][phones["label"][1:-1] == "sil"]
     assert np.all((inner_pauses["end"] - inner_pauses["start"] >= 0.3 - 1e-9)
@@ -91,15 +93,15 @@ def test_phone_sequence_tiles_the_clip_with_pauses(script):
 def test_mouth_follows_phones_ahead_of_the_sound(script):
     phones = script.phones
     rng = gen.video_rng(7, 0, "mouth")
-    targets, dominance = gen.mouth_targets(phones, rng)
+    targets, dominance = articulation.mouth_targets(phones, rng)
     times = np.arange(int(SECONDS * 1000)) / 1000.0
-    opening = gen.mouth_trajectory(phones, targets, dominance, times)[:, 0]
+    opening = articulation.mouth_trajectory(phones, targets, dominance, times)[:, 0]
     np.testing.assert_allclose(opening[::40], script.mouth[:, 0], atol=1e-6)
-    step_target = targets[gen.phone_index_at(phones, times), 0]
+    step_target = targets[language.phone_index_at(phones, times), 0]
     lag = best_lag_ms(opening, step_target, 1.0, max_lag=200)
     assert 50 <= lag <= 110, lag
 
-    lead = gen.MOUTH_LEAD_S
+    lead = articulation.MOUTH_LEAD_S
     centres = 0.5 * (phones["start"] + phones["end"])
     open_at = np.interp(centres - lead, times, opening)
     assert np.all(open_at[np.isin(phones["label"], BILABIALS)] < 0.1)
@@ -123,8 +125,8 @@ def test_audio_is_speech_like_and_lags_the_mouth(script):
     hop = RATE // 100
     envelope = np.log(np.sqrt(uniform_filter1d(audio**2, 4 * hop)[::hop]) + 1e-4)
     frame_times = np.arange(len(envelope)) / 100.0
-    targets, dominance = gen.mouth_targets(phones, gen.video_rng(7, 0, "mouth"))
-    opening = gen.mouth_trajectory(phones, targets, dominance, frame_times)[:, 0]
+    targets, dominance = articulation.mouth_targets(phones, gen.video_rng(7, 0, "mouth"))
+    opening = articulation.mouth_trajectory(phones, targets, dominance, frame_times)[:, 0]
     assert 30 <= best_lag_ms(opening, envelope, 10.0) <= 130
 
 
@@ -136,7 +138,7 @@ def test_fricatives_are_high_frequency_noise(script):
         power = np.abs(np.fft.rfft(audio[a:b] * np.hanning(b - a))) ** 2
         freqs = np.fft.rfftfreq(b - a, 1.0 / RATE)
         return power[freqs > 2000].sum() / power.sum()
-    vowels = [high_band_fraction(i) for i in np.flatnonzero(np.isin(phones["label"], gen.VOWELS))]
+    vowels = [high_band_fraction(i) for i in np.flatnonzero(np.isin(phones["label"], language.VOWELS))]
     sibilants = [high_band_fraction(i) for i in np.flatnonzero(np.isin(phones["label"], ("s", "sh")))]
     assert np.median(vowels) < 0.1
     if sibilants:
@@ -154,9 +156,10 @@ def test_landmarks_inside_frame_and_mesh_never_folds(template, script):
         return 0.5 * ((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
     reference = np.sign(signed_areas(template.mesh_points))
     for t in range(len(landmarks)):
-        points = gen.frame_mesh_points(template, landmarks[t].astype(float), script.pose[t].astype(float))
+        points = articulation.frame_mesh_points(template, landmarks[t].astype(float),
+                                                script.pose[t].astype(float))
         areas = signed_areas(points)
-        assert np.all((np.sign(areas) == reference) | (np.abs(areas) < gen.MIN_TRIANGLE_AREA)), t
+        assert np.all((np.sign(areas) == reference) | (np.abs(areas) < render.MIN_TRIANGLE_AREA)), t
 
 
 def test_blinks_and_pose_are_smooth_and_bounded(script):
@@ -190,7 +193,7 @@ def test_cli_writes_complete_deterministic_corpus(corpus):
     assert truth["mouth"].shape == (n_frames, 3)
     assert truth["voiced"].shape == (n_frames,) and truth["voiced"].dtype == bool
     assert truth["phones"].dtype.names == ("label", "start", "end")
-    assert list(truth["mouth_names"]) == list(gen.MOUTH_NAMES)
+    assert list(truth["mouth_names"]) == list(articulation.MOUTH_NAMES)
 
 
 def test_hog_finds_the_face_and_predictor_agrees_with_truth(corpus):

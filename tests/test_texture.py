@@ -1,12 +1,11 @@
 """synthesize.texture: candidates, Eq. 12 σ, weighted median, teeth proxy (paper 000 §3.2)."""
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 import skimage.data
 
-from stages.pca.pca import LIP_POINTS
+from pipeline.face import LIP_POINTS
 from stages.synthesize import texture as tx
 
 LIP18 = np.array(LIP_POINTS) - 48          # rows of the 18 shape points inside the 20 lip points
@@ -277,15 +276,12 @@ def test_synthesize_texture_end_to_end_on_shifted_real_frames(astronaut_mouth):
     assert rgb_yuv.shape == rgb.shape and np.abs(rgb_yuv.astype(float) - rgb)[mouth].mean() < 6
 
 
-REAL_STORES = [Path("/work/grid/frontalize.zarr"), Path("/tmp/t/frontalize.zarr")]
-
-
 @pytest.mark.real
-def test_real_store_frame_if_available():
-    store = next((p for p in REAL_STORES if (p / "zarr.json").exists()), None)
-    if store is None:
-        pytest.skip("no local frontalize store (/work/grid or /tmp/t); the astronaut tests cover this")
+@pytest.mark.slow
+def test_teeth_detail_on_real_frontal_textures(grid_preprocessed):
+    """Teeth proxy and weighted median on frontal textures of real GRID footage."""
     import zarr
+    store = grid_preprocessed / "frontalize.zarr"
     from pipeline.store import i420_to_rgb
     g = zarr.open_group(store, mode="r")
     k = min(600, g["texture"].shape[0])

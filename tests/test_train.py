@@ -8,13 +8,16 @@ import pytest
 import torch
 
 from pipeline.errors import BadInputError
-from stages.pca.pca import fingerprint, fit_pca, project, reconstruct, resample_to_100hz
+from pipeline import delayed_lstm
+from pipeline.model_folder import ModelError, load_model, save_model
+from pipeline.mouth_pca import fingerprint, project, reconstruct
+from pipeline.mouth_prediction import frame_count, load_audio, predict_mouth
+from pipeline.params import Train
+from stages.pca.pca import fit_pca, resample_to_100hz
 from stages.train import lstm
 from stages.train.evaluate import lagged_correlation
-from stages.train.model_folder import ModelError, load_model, save_model
-from stages.train.predict import frame_count, load_audio, predict_mouth
 
-P = dict(hidden=16, layers=1, batch_size=20, bptt=50, lr=0.01, epochs=60)
+P = Train(hidden=16, layers=1, batch_size=20, bptt=50, lr=0.01, epochs=60)
 
 
 def test_pca_round_trip_and_variance_order():
@@ -49,6 +52,7 @@ def toy_sequences(k, n_seq=30, length=300, seed=0):
     return seqs
 
 
+@pytest.mark.slow
 def test_target_delay_is_needed_to_see_the_future():
     k = 5
     train, val = toy_sequences(k), toy_sequences(k, 6, seed=1)
@@ -71,7 +75,7 @@ def test_delayed_pairs_alignment():
 def model_dir(tmp_path_factory):
     rng = np.random.default_rng(0)
     folder = tmp_path_factory.mktemp("model")
-    net = lstm.DelayedLSTM(28, 12, 20)
+    net = delayed_lstm.DelayedLSTM(28, 12, 20)
     basis = fit_pca(rng.normal(size=(200, 36)), 20)
     save_model(folder, net, dict(model="lstm", delay=20, hidden=12, layers=1, n_features=28, n_components=20,
                                  feature_rate=100.0, params={}), np.zeros(28, np.float32), np.ones(28, np.float32),
@@ -82,9 +86,9 @@ def model_dir(tmp_path_factory):
 def test_chunked_inference_equals_one_pass(model_dir):
     model, config, _ = load_model(model_dir)
     x = np.random.default_rng(1).normal(size=(437, 28)).astype(np.float32)
-    one = lstm.predict_sequence(model, x, config["delay"], "cpu")
+    one = delayed_lstm.predict_sequence(model, x, config["delay"], "cpu")
     for chunk in (1, 37, 100):
-        np.testing.assert_allclose(lstm.predict_sequence(model, x, config["delay"], "cpu", chunk), one, atol=1e-5)
+        np.testing.assert_allclose(delayed_lstm.predict_sequence(model, x, config["delay"], "cpu", chunk), one, atol=1e-5)
     assert one.shape == (437, 20)
 
 

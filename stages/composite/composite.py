@@ -14,7 +14,6 @@ Run: ``python -m stages.composite.composite``.
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import time
@@ -27,26 +26,30 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline import media
+from pipeline.canonical import Surface, TextureWindow
 from pipeline.geometry import intrinsics
-from pipeline.runner import stage_main
+from pipeline.repeats import halfway_frame, repeat_partners
+from pipeline.params import Composite, Params
+from pipeline.runner import stage_main, write_timing
 from pipeline.store import i420_to_rgb, open_group
 from stages.composite.layers import (colour_match, jaw_band, jaw_correction, layer_masks, pyramid_blend, skin_region,
                                      synth_alpha)
 from stages.composite.render import inverse_map, render, texture_footprint
-from stages.frontalize.warp import Surface, TextureWindow
-from stages.synthesize.retime import halfway_frame, repeat_partners
 
 log = logging.getLogger("lipsynth.composite")
 
 
 class Target:
-    """The target video's frames and per-frame geometry, from the stores it was preprocessed into."""
+    """The target video's frames and per-frame geometry, from the stores it was preprocessed into.
 
-    def __init__(self, synth):
-        a = synth.attrs
-        self.fr = open_group(a["frontalize_store"])
-        self.video = a["target"]
-        self.reader = media.FrameReader(self.video["path"])
+    ``frontalize`` is the frontalize store that holds the target, ``video`` its index entry and
+    ``video_path`` the source file its full frames are read from.
+    """
+
+    def __init__(self, frontalize, video: dict, video_path):
+        self.fr = frontalize
+        self.video = video
+        self.reader = media.FrameReader(video_path)
         self.K = intrinsics(self.video["width"], self.video["height"], self.fr.attrs["focal_factor"])
         g = self.fr.attrs["grid"]
         self.surface = Surface(np.asarray(self.fr["model/depth"][...], np.float64), g["x0"], g["y0"], g["step"])
@@ -78,7 +81,7 @@ class Target:
         return self._block(j)[1].astype(np.float32)
 
 
-def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Target, p: dict,
+def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Target, p: Composite,
                     timing: dict | None = None, inpainted: np.ndarray | None = None) -> np.ndarray:
     """One output frame: target frame j (H, W, 3) with the synthesized texture (T, T, 3) blended in.
 
@@ -91,19 +94,19 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     lm = tgt.flm[j]
     T = synth_rgb.shape[0]
     target_tex = tgt.texture(j)
-    mouth, neck = layer_masks(lm, T, p["feather_px"], neck_depth=p["neck_depth"])
+    mouth, neck = layer_masks(lm, T, p.feather_px, neck_depth=p.neck_depth)
     if inpainted is not None:
         neck = neck * (1 - cv2.GaussianBlur(inpainted.astype(np.float32) / 255, (0, 0), 1.5))
-    if p["colour_match"]:
+    if p.colour_match:
         synth_rgb = colour_match(synth_rgb, target_tex, skin_region(lm, mouth))
-    if p["jaw_correction"]:
-        synth_rgb = jaw_correction(synth_rgb, target_tex, jaw_band(lm, T, p["jaw_band_px"]))
+    if p.jaw_correction:
+        synth_rgb = jaw_correction(synth_rgb, target_tex, jaw_band(lm, T, p.jaw_band_px))
     t1 = time.perf_counter()
     shirt = cv2.GaussianBlur(tgt.clothing(j), (0, 0), 1.5)
     alpha = synth_alpha(mouth, neck, shirt)
     rvec, tvec = tgt.pose[j, :3], tgt.pose[j, 3:]
     # the blend box: the texture's footprint plus the reach of the coarsest pyramid level
-    x0, y0, x1, y1 = texture_footprint(tgt.points, rvec, tvec, tgt.K, frame.shape, margin=2 ** p["pyramid_levels"])
+    x0, y0, x1, y1 = texture_footprint(tgt.points, rvec, tvec, tgt.K, frame.shape, margin=2 ** p.pyramid_levels)
     if x1 <= x0 or y1 <= y0:
         return frame
     mu, mv = inverse_map((x0, y0, x1, y1), tgt.surface, tgt.window, rvec, tvec, tgt.K)
@@ -112,16 +115,16 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     t2 = time.perf_counter()
     a = rendered[..., 3].astype(np.float32) / 255 * cover
     back = frame[y0:y1, x0:x1]
-    if p["sharpen"] > 0:              # give back the detail the resampling chain took (unsharp mask)
+    if p.sharpen > 0:              # give back the detail the resampling chain took (unsharp mask)
         rgb = rendered[..., :3].astype(np.float32)
-        rgb += p["sharpen"] * (rgb - cv2.GaussianBlur(rgb, (0, 0), p["sharpen_sigma"]))
+        rgb += p.sharpen * (rgb - cv2.GaussianBlur(rgb, (0, 0), p.sharpen_sigma))
         rendered = np.dstack([np.clip(rgb + 0.5, 0, 255).astype(np.uint8), rendered[..., 3]])
     # outside the layer's support the front image is the target itself, so the pyramid's coarse
     # levels blend the synthesized face with the target only where they actually differ
     support = cv2.dilate((a > 1e-3).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     front = np.where(support[..., None], rendered[..., :3], back)
     out = frame.copy()
-    out[y0:y1, x0:x1] = pyramid_blend(front, back, a, p["pyramid_levels"])
+    out[y0:y1, x0:x1] = pyramid_blend(front, back, a, p.pyramid_levels)
     if timing is not None:
         t3 = time.perf_counter()
         for k, dt in (("flow", t1 - t0), ("render_back", t2 - t1), ("blend", t3 - t2)):
@@ -143,20 +146,30 @@ def diagnostic(target: np.ndarray, result: np.ndarray, texture: np.ndarray, lip_
     return np.hstack([target, result, panel])
 
 
-def run(params: dict, synth_path: str, out_video: str) -> dict:
-    p = params["composite"]
+def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, video_path: str, audio_path: str) -> dict:
+    """Composite the textures of ``synth_path`` into the target video and mux ``audio_path``.
+
+    Parameters
+    ----------
+    frontalize_path : the frontalize store that holds the target (its geometry and textures).
+    video_path : the target's source video (full frames).
+    audio_path : the new speech (any file PyAV reads).
+
+    Returns the thread time per output frame of each phase (ms).
+    """
+    p = params.composite
     synth = open_group(synth_path)
-    tgt = Target(synth)
+    tgt = Target(open_group(frontalize_path), synth.attrs["target"], video_path)
     mapping = np.asarray(synth["target_frame"][...])
     lips = np.asarray(synth["lip_points"][...])
     partner = repeat_partners(mapping)        # repeated frames become half-way flow frames (§3.3)
-    sr = int(p["audio_rate"])
-    audio, _ = media.read_audio(synth.attrs["audio"], sr)
+    sr = int(p.audio_rate)
+    audio, _ = media.read_audio(audio_path, sr)
     audio = audio[:int(round(len(mapping) / tgt.video["fps"] * sr))]
     out = Path(out_video)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}.mp4")
-    diag = out.with_name(out.stem + ".diagnostic.mp4") if p["diagnostic"] else None
+    diag = out.with_name(out.stem + ".diagnostic.mp4") if p.diagnostic else None
     diag_tmp = diag.with_name(f".{diag.name}.tmp-{os.getpid()}.mp4") if diag else None
     timing: dict = {}
     t_start = time.perf_counter()
@@ -170,9 +183,9 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
         return frame, composite_frame(frame, texture, j, tgt, p, t, inpainted), t
 
     try:
-        with media.VideoWriter(tmp, tgt.video["fps"], p["crf"], p["preset"], audio, sr) as w, \
-                (media.VideoWriter(diag_tmp, tgt.video["fps"], p["crf"], p["preset"], audio, sr)
-                 if diag else _Null()) as dw, ThreadPoolExecutor(p["threads"]) as pool:
+        with media.VideoWriter(tmp, tgt.video["fps"], p.crf, p.preset, audio, sr) as w, \
+                (media.VideoWriter(diag_tmp, tgt.video["fps"], p.crf, p.preset, audio, sr)
+                 if diag else _Null()) as dw, ThreadPoolExecutor(p.threads) as pool:
             pending: deque = deque()
 
             def flush(keep: int) -> None:
@@ -200,7 +213,7 @@ def run(params: dict, synth_path: str, out_video: str) -> dict:
                     timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
                     texture = textures[i % 256]
                     pending.append((i, texture, pool.submit(work, frame, following, texture, j, inpainted[i % 256])))
-                    flush(2 * p["threads"])
+                    flush(2 * p.threads)
                 flush(0)
         os.replace(tmp, out)
         if diag:
@@ -226,15 +239,20 @@ class _Null:
         pass
 
 
-def run_stage(params: dict) -> dict:
-    """The DVC stage: ``composite.out_dir``/result.mp4 and the per-phase timing in metrics/composite.json."""
+def run_stage(params: Params) -> dict:
+    """The DVC stage: ``composite.out_dir``/result.mp4 from the corpus target of ``synthesize``.
+
+    Every input is a declared dependency: the synthesize and frontalize stores, the target's
+    source video (a file of ``data.videos``, by its path relative to the project root) and
+    ``synthesize.audio``. Per-phase timing goes to ``logs/composite.timing.json`` (untracked).
+    """
     t0 = time.perf_counter()
-    ms = run(params, params["synthesize"]["out"], str(Path(params["composite"]["out_dir"]) / "result.mp4"))
-    fps = open_group(params["synthesize"]["out"]).attrs["n_frames"] / (time.perf_counter() - t0)
-    metrics = Path("metrics/composite.json")
-    metrics.parent.mkdir(exist_ok=True)
-    metrics.write_text(json.dumps({"ms_per_frame": {k: round(v, 2) for k, v in ms.items()},   # thread time
-                                   "fps": round(fps, 2)}, indent=2) + "\n")                  # wall clock
+    synth_path = params.synthesize.out
+    video = open_group(synth_path).attrs["target"]
+    ms = run(params, synth_path, str(Path(params.composite.out_dir) / "result.mp4"),
+             params.frontalize.out, video["path"], params.synthesize.audio)
+    ms["wall_fps"] = open_group(synth_path).attrs["n_frames"] / (time.perf_counter() - t0)
+    write_timing("composite", ms)
     return ms
 
 

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from pipeline.geometry import project
-from stages.frontalize.warp import Surface, TextureWindow, frontal_landmarks
+from pipeline.canonical import Surface, TextureWindow, frontal_landmarks
 
 
 def texture_footprint(points: np.ndarray, rvec, tvec, K: np.ndarray, frame_shape, margin: int = 4):

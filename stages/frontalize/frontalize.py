@@ -26,16 +26,18 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline import face
+from pipeline.canonical import Surface, TextureWindow, frontal_landmarks
 from pipeline.errors import LipsynthError
 from pipeline.geometry import euler_degrees, intrinsics, solve_pose
 from pipeline.parallel import client_for, run_tasks
+from pipeline.params import Frontalize, Params
 from pipeline.runner import stage_main
 from pipeline.store import (atomic_output, create_group, create_timed, i420_to_rgb, occupied_shards, open_group,
                             rgb_to_i420, video_of_frames, videos_in)
 from stages.frontalize import model3d
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
-from stages.frontalize.warp import (Surface, TextureWindow, clothing_mask, frontal_landmarks, frontal_texture,
-                                    inpaint)
+from stages.frontalize.warp import clothing_mask, frontal_texture, inpaint
 
 log = logging.getLogger("lipsynth.frontalize")
 
@@ -51,34 +53,34 @@ def sample_model_frames(videos: list[dict], valid: np.ndarray, max_frames: int) 
     return idx[np.unique(np.linspace(0, len(idx) - 1, min(max_frames, len(idx))).round().astype(int))]
 
 
-def build_model(lms: np.ndarray, Ks: list[np.ndarray], p: dict) -> tuple[np.ndarray, dict]:
+def build_model(lms: np.ndarray, Ks: list[np.ndarray], p: Frontalize) -> tuple[np.ndarray, dict]:
     """3D model (68, 3) mm from sampled landmarks (F, 68, 2); returns it with a report dict."""
     mean2d = model3d.mean_shape_2d(lms)
     prior = model3d.prior_shape(mean2d)
     kappa = model3d.conditioning(lms)
-    method = "factorization" if kappa >= p["min_conditioning"] else "prior"
+    method = "factorization" if kappa >= p.min_conditioning else "prior"
     start = model3d.factorize(lms) if method == "factorization" else model3d._to_canonical(prior)
-    shape, before, after = model3d.bundle_adjust(start, list(lms), Ks, p["ba_iterations"])
+    shape, before, after = model3d.bundle_adjust(start, list(lms), Ks, p.ba_iterations)
     report = dict(method=method, conditioning=kappa, ba_rms_before=before, ba_rms_after=after, n_frames=len(lms))
     log.info("3D model: %s start (conditioning s3/s4 = %.2f, threshold %.1f), bundle adjustment over %d frames: "
-             "RMS %.2f → %.2f px", method, kappa, p["min_conditioning"], len(lms), before, after)
+             "RMS %.2f → %.2f px", method, kappa, p.min_conditioning, len(lms), before, after)
     return shape, report
 
 
-def build_surface(shape: np.ndarray, p: dict) -> tuple[Surface, np.ndarray]:
+def build_surface(shape: np.ndarray, p: Frontalize) -> tuple[Surface, np.ndarray]:
     """Extended depth map over the canonical grid (Eq. 7–8)."""
-    step = p["grid_mm"]
-    xs = np.arange(p["grid_x_mm"][0], p["grid_x_mm"][1] + 1e-9, step)
-    ys = np.arange(p["grid_y_mm"][0], p["grid_y_mm"][1] + 1e-9, step)
+    step = p.grid_mm
+    xs = np.arange(p.grid_x_mm[0], p.grid_x_mm[1] + 1e-9, step)
+    ys = np.arange(p.grid_y_mm[0], p.grid_y_mm[1] + 1e-9, step)
     depth, known = face_depth_on_grid(shape, xs, ys)
-    ext = extend_depth(np.nan_to_num(depth), known, p["data_weight"], p["boundary_weight"])
+    ext = extend_depth(np.nan_to_num(depth), known, p.data_weight, p.boundary_weight)
     return Surface(ext, float(xs[0]), float(ys[0]), step), known
 
 
-def texture_window(p: dict) -> TextureWindow:
-    x0, x1 = p["texture_x_mm"]
-    y0 = p["texture_y_mm"][0]
-    return TextureWindow(float(x0), float(y0), (x1 - x0) / p["texture_size"], int(p["texture_size"]))
+def texture_window(p: Frontalize) -> TextureWindow:
+    x0, x1 = p.texture_x_mm
+    y0 = p.texture_y_mm[0]
+    return TextureWindow(float(x0), float(y0), (x1 - x0) / p.texture_size, int(p.texture_size))
 
 
 # ---------------------------------------------------------------- execution: per shard
@@ -107,18 +109,18 @@ def frontalize_block(job: dict) -> int:
     pok = np.zeros(b - a, bool)
     rerr = np.full(b - a, np.nan, np.float32)
     for v, lo, hi in video_of_frames(job["videos"], a, b):
-        K = intrinsics(v["width"], v["height"], p["focal_factor"])
+        K = intrinsics(v["width"], v["height"], p.focal_factor)
         guess = None
         for i in range(lo - a, hi - a):
             if not valid[i] or v.get("excluded"):
                 guess = None
                 continue
             rvec, tvec, err = solve_pose(shape[model3d.RIGID], lms[i][model3d.RIGID], K, guess)
-            iod_px = np.linalg.norm(lms[i][45] - lms[i][36])
-            if guess is not None and err > p["max_reprojection"] * iod_px:   # bad warm start: solve globally
+            iod_px = face.interocular(lms[i])
+            if guess is not None and err > p.max_reprojection * iod_px:   # bad warm start: solve globally
                 rvec, tvec, err = solve_pose(shape[model3d.RIGID], lms[i][model3d.RIGID], K)
             rerr[i] = err
-            if err > p["max_reprojection"] * iod_px or tvec[2] <= 0:
+            if err > p.max_reprojection * iod_px or tvec[2] <= 0:
                 guess = None
                 continue
             guess = (rvec, tvec)
@@ -128,9 +130,9 @@ def frontalize_block(job: dict) -> int:
             xy = frontal_landmarks(lms[i].astype(np.float64), shape[:, :2], surface, rvec, tvec, K)
             uv = win.to_pixels(xy)
             flm[i] = uv
-            m = clothing_mask(texture, uv[:17], p["cloth_dark_value"], p["cloth_white_saturation"],
-                              p["cloth_white_value"], p["cloth_dilate_px"])
-            texture = inpaint(texture, m, p["inpaint_radius"])
+            m = clothing_mask(texture, uv[:17], p.cloth_dark_value, p.cloth_white_saturation,
+                              p.cloth_white_value, p.cloth_dilate_px)
+            texture = inpaint(texture, m, p.inpaint_radius)
             cloth[i] = m
             tex[i] = rgb_to_i420(texture)
     dst["texture"][a:b] = tex
@@ -142,31 +144,31 @@ def frontalize_block(job: dict) -> int:
     return int(pok.sum())
 
 
-def run(params: dict, ingest_path: str, landmarks_path: str, out: str) -> dict:
-    p = params["frontalize"]
+def run(params: Params, ingest_path: str, landmarks_path: str, out: str) -> dict:
+    p = params.frontalize
     src, lmg = open_group(ingest_path), open_group(landmarks_path)
     videos = [dict(v) for v in lmg.attrs["videos"]]
     valid = np.asarray(lmg["valid"][...])
     n, shard = len(valid), src["crops"].shards[0]
-    pick = sample_model_frames(videos, valid, p["model_frames"])
+    pick = sample_model_frames(videos, valid, p.model_frames)
     lms = np.asarray(lmg["landmarks"].get_orthogonal_selection((pick,)), np.float64)
     by_frame = {}
     for v in videos:
         by_frame.update({i: v for i in range(v["first_frame"], v["first_frame"] + v["n_frames"])})
-    Ks = [intrinsics(by_frame[i]["width"], by_frame[i]["height"], p["focal_factor"]) for i in pick]
+    Ks = [intrinsics(by_frame[i]["width"], by_frame[i]["height"], p.focal_factor) for i in pick]
     shape, report = build_model(lms, Ks, p)
     surface, known = build_surface(shape, p)
     win = texture_window(p)
     points = win.grid_points(surface)
     T = win.size
-    with atomic_output(out) as tmp, client_for(params["cluster"]) as client:
+    with atomic_output(out) as tmp, client_for(params.cluster) as client:
         g = create_group(tmp)
         mg = g.create_group("model")
         for name, arr in (("shape3d", shape), ("depth", surface.depth), ("face_region", known),
                           ("texture_points", points)):
             mg.create_array(name, data=np.asarray(arr, np.float32 if arr.dtype != bool else bool))
-        create_timed(g, "texture", n, (T * 3 // 2, T), "uint8", shard, p["chunk_frames"])
-        create_timed(g, "clothing_mask", n, (T, T), "bool", shard, p["chunk_frames"], fill_value=False)
+        create_timed(g, "texture", n, (T * 3 // 2, T), "uint8", shard, p.chunk_frames)
+        create_timed(g, "clothing_mask", n, (T, T), "bool", shard, p.chunk_frames, fill_value=False)
         create_timed(g, "frontal_landmarks", n, (68, 2), "float32", shard, shard)
         create_timed(g, "pose", n, (6,), "float32", shard, shard)
         create_timed(g, "pose_valid", n, (), "bool", shard, shard, fill_value=False)
@@ -179,7 +181,7 @@ def run(params: dict, ingest_path: str, landmarks_path: str, out: str) -> dict:
         frames = [sum(hi - lo for _, lo, hi in video_of_frames(videos, a, b)) for a, b in ranges]
         ok = sum(run_tasks(client, frontalize_block, jobs, "frontalize", "frame", frames))
         g.attrs.update(dict(videos=videos, model=report, texture_window=common["window"],
-                            grid=dict(x0=surface.x0, y0=surface.y0, step=surface.step), focal_factor=p["focal_factor"],
+                            grid=dict(x0=surface.x0, y0=surface.y0, step=surface.step), focal_factor=p.focal_factor,
                             landmark_units="texture pixels", pose_units="rvec rad, tvec mm (model to camera)"))
         pose = np.asarray(g["pose"][...])
         pv = np.asarray(g["pose_valid"][...])
@@ -191,7 +193,7 @@ def run(params: dict, ingest_path: str, landmarks_path: str, out: str) -> dict:
 
 
 def main(argv=None) -> int:
-    return stage_main("lipsynth frontalize", __doc__, lambda p: run(p, p["ingest"]["out"], p["landmarks"]["out"], p["frontalize"]["out"]), argv)
+    return stage_main("lipsynth frontalize", __doc__, lambda p: run(p, p.ingest.out, p.landmarks.out, p.frontalize.out), argv)
 
 
 if __name__ == "__main__":

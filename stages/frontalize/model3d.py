@@ -16,11 +16,11 @@ import logging
 
 import numpy as np
 
+from pipeline.face import IOD_MM, LEFT_EYE_OUTER as LEO, RIGHT_EYE_OUTER as REO
 from pipeline.geometry import rotation, solve_pose
 
 log = logging.getLogger("lipsynth.frontalize")
 
-IOD_MM = 90.0
 # Rigid landmarks: upper jaw contour, brows, nose, eye corners (eyelids blink, mouth/jaw move).
 RIGID = np.array([0, 1, 15, 16] + list(range(17, 36)) + [36, 39, 42, 45])
 
@@ -48,15 +48,15 @@ def similarity_align(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def mean_shape_2d(landmarks: np.ndarray, iters: int = 3) -> np.ndarray:
-    """Generalised Procrustes mean of (F, 68, 2) landmarks, scaled to IOD = 90 mm, eyes centred."""
+    """Generalised Procrustes mean of (F, 68, 2) landmarks, scaled to IOD = IOD_MM, eyes centred."""
     ref = landmarks[0].astype(np.float64)
     for _ in range(iters):
         aligned = np.stack([similarity_align(lm[RIGID], ref[RIGID]) for lm in landmarks])
         full = np.stack([_apply_similarity(lm, lm[RIGID], al) for lm, al in zip(landmarks, aligned)])
         ref = full.mean(0)
-    iod = np.linalg.norm(ref[45] - ref[36])
-    centre = (ref[45] + ref[36]) / 2
-    angle = np.arctan2(*(ref[45] - ref[36])[::-1])
+    iod = np.linalg.norm(ref[LEO] - ref[REO])
+    centre = (ref[LEO] + ref[REO]) / 2
+    angle = np.arctan2(*(ref[LEO] - ref[REO])[::-1])
     c, s = np.cos(-angle), np.sin(-angle)
     return ((ref - centre) @ np.array([[c, s], [-s, c]])) * (IOD_MM / iod)
 
@@ -71,7 +71,7 @@ def _apply_similarity(points, src, dst_of_src):
 
 def prior_shape(mean2d: np.ndarray) -> np.ndarray:
     """(68, 3) start shape: the speaker's mean 2D shape plus the anthropometric depth prior (mm)."""
-    z = PRIOR_DEPTH - PRIOR_DEPTH[[36, 45]].mean()   # depth relative to the outer eye corners
+    z = PRIOR_DEPTH - PRIOR_DEPTH[[REO, LEO]].mean()   # depth relative to the outer eye corners
     return np.column_stack([mean2d, z])
 
 
@@ -122,23 +122,23 @@ def factorize(landmarks: np.ndarray) -> np.ndarray:
 
 
 def _to_canonical(X: np.ndarray) -> np.ndarray:
-    """Express a (68, 3) shape in the canonical face frame (see module doc), IOD = 90 mm."""
+    """Express a (68, 3) shape in the canonical face frame (see module doc), IOD = IOD_MM."""
     X = np.asarray(X, np.float64)
     plane = X[[36, 39, 42, 45, 31, 35, 48, 54]]
     c = plane.mean(0)
     z = np.linalg.svd(plane - c)[2][2]
     if np.dot(X[30] - c, z) > 0:         # the nose tip must point toward the viewer (−z)
         z = -z
-    x = X[45] - X[36]
+    x = X[LEO] - X[REO]
     x = x - np.dot(x, z) * z
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     R = np.stack([x, y, z])
-    origin = (X[36] + X[45]) / 2
+    origin = (X[REO] + X[LEO]) / 2
     out = (X - origin) @ R.T
     if out[8, 1] < out[27, 1]:           # chin above the nose bridge: a mirror image (factorisation
         out[:, 1] *= -1                  # sign ambiguity) — reflect it back
-    return out * (IOD_MM / np.linalg.norm(out[45] - out[36]))
+    return out * (IOD_MM / np.linalg.norm(out[LEO] - out[REO]))
 
 
 def bundle_adjust(shape: np.ndarray, observations: list[np.ndarray], cameras: list[np.ndarray],
@@ -202,6 +202,7 @@ def bundle_adjust(shape: np.ndarray, observations: list[np.ndarray], cameras: li
         opts.refine_extra_params = False
         opts.print_summary = False
         opts.ceres.solver_options.max_num_iterations = max_iterations
+        opts.ceres.solver_options.num_threads = 1      # one summation order: the store is byte-reproducible
         opts.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
         pycolmap.create_default_bundle_adjuster(opts, cfg, rec).solve()
 

@@ -17,7 +17,7 @@ Store ``store/ingest.zarr``:
     video_id    (N,) int32           index into attrs["videos"] (−1 in the gaps between videos)
     audio       (A,) int16           16 kHz mono RMS-normalised PCM
     mfcc        (M, 28) float32      100 Hz features (13 MFCC, log energy, deltas)
-    attrs["videos"]: per-video index (name, path, split, first_frame, n_frames, first_sample,
+    attrs["videos"]: per-video index (name, path relative to the project root, split, first_frame, n_frames, first_sample,
     n_samples, first_mfcc, n_mfcc, fps, crop, ...)
 
 Every video starts on a shard boundary of each axis, so the one task that decodes a video
@@ -40,8 +40,9 @@ import numpy as np
 from pipeline import audio_features, face, media
 from pipeline.errors import BadInputError, LipsynthError, ParameterError
 from pipeline.parallel import client_for, run_tasks
+from pipeline.params import Ingest, Params
 from pipeline.runner import stage_main
-from pipeline.store import atomic_output, create_group, create_timed
+from pipeline.store import atomic_output, create_group, create_timed, project_path
 
 log = logging.getLogger("lipsynth.ingest")
 VIDEO_EXTS = {".mp4", ".mov", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".m4v"}
@@ -183,22 +184,22 @@ def _detect_on(frames: list, max_samples: int, min_face_px: float, upsample: int
     return boxes, small, len(pick)
 
 
-def probe_video(path: str, p: dict) -> dict:
+def probe_video(path: str, p: Ingest) -> dict:
     """Header-only checks and size estimates of one video (on the client, before any writing)."""
     info = media.probe(path)
-    if not (p["min_fps"] <= info.fps <= p["max_fps"]):
-        raise BadInputError(path, f"frame rate {info.fps:.3f} fps outside the supported {p['min_fps']}–{p['max_fps']} fps")
+    if not (p.min_fps <= info.fps <= p.max_fps):
+        raise BadInputError(path, f"frame rate {info.fps:.3f} fps outside the supported {p.min_fps}–{p.max_fps} fps")
     if not info.has_audio:
         raise BadInputError(path, "no audio track (training videos need the speaker's audio)")
-    if info.duration and info.duration < p["min_seconds"]:
-        raise BadInputError(path, f"too short: {info.duration:.2f} s < ingest.min_seconds={p['min_seconds']}")
+    if info.duration and info.duration < p.min_seconds:
+        raise BadInputError(path, f"too short: {info.duration:.2f} s < ingest.min_seconds={p.min_seconds}")
     est = info.n_frames or int(np.ceil(info.duration * info.fps))
-    return dict(name=video_name(path), path=os.path.abspath(path), fps=info.fps, width=info.width,
+    return dict(name=video_name(path), path=project_path(path), fps=info.fps, width=info.width,
                 height=info.height, est_frames=est, source_audio_rate=info.audio_rate,
                 source_audio_channels=info.audio_channels)
 
 
-def decode_video(path: str, p: dict) -> dict:
+def decode_video(path: str, p: Ingest) -> dict:
     """Everything ingest stores for one video, as arrays (pure of the store).
 
     Returns
@@ -207,9 +208,9 @@ def decode_video(path: str, p: dict) -> dict:
     mfcc (1 + A // 160, 28), crop [x0, y0, s], audio_offset (s), fps.
     """
     info = media.probe(path)
-    boxes = find_face_boxes(path, p["detect_samples"], p["min_face_px"], p["detect_upsample"])
-    box = crop_box(boxes, p["crop_scale"], p["crop_shift_down"])
-    size = p["crop_size"]
+    boxes = find_face_boxes(path, p.detect_samples, p.min_face_px, p.detect_upsample)
+    box = crop_box(boxes, p.crop_scale, p.crop_shift_down)
+    size = p.crop_size
     times, crops = [], []
     for t, yuv in media.iter_frames(path, fmt="yuv"):
         times.append(t)
@@ -217,11 +218,11 @@ def decode_video(path: str, p: dict) -> dict:
     n = len(times)
     if n == 0:
         raise BadInputError(path, "no decodable video frames")
-    if n / info.fps < p["min_seconds"]:
-        raise BadInputError(path, f"too short: {n / info.fps:.2f} s < ingest.min_seconds={p['min_seconds']}")
+    if n / info.fps < p.min_seconds:
+        raise BadInputError(path, f"too short: {n / info.fps:.2f} s < ingest.min_seconds={p.min_seconds}")
     samples, audio_start = media.read_audio(path, audio_features.SAMPLE_RATE)
     audio = media.align_audio(samples, audio_start, times[0], n / info.fps, audio_features.SAMPLE_RATE)
-    audio = audio_features.rms_normalize(audio, p["rms_target_dbfs"])
+    audio = audio_features.rms_normalize(audio, p.rms_target_dbfs)
     return dict(crops=np.stack(crops), frame_time=np.asarray(times) - times[0], audio=audio,
                 mfcc=audio_features.mfcc_features(audio), crop=[box[0], box[1], box[2] / size],
                 audio_offset=audio_start - times[0], fps=info.fps)
@@ -279,31 +280,31 @@ def layout(entries: list[dict], shard_frames: int, shard_samples: int, shard_mfc
     return f, s, m
 
 
-def run(params: dict, out: str) -> list[dict]:
-    data, p = params["data"], params["ingest"]
-    if p["crop_size"] % 4:
-        raise ParameterError(f"ingest.crop_size={p['crop_size']}: must be a multiple of 4 (I420 storage)")
-    paths = list_videos(data["videos"])
-    splits = split_videos([video_name(q) for q in paths], data["val_fraction"], data["split_seed"])
-    log.info("ingesting %d videos from %s", len(paths), data["videos"])
+def run(params: Params, out: str) -> list[dict]:
+    data, p = params.data, params.ingest
+    if p.crop_size % 4:
+        raise ParameterError(f"ingest.crop_size={p.crop_size}: must be a multiple of 4 (I420 storage)")
+    paths = list_videos(data.videos)
+    splits = split_videos([video_name(q) for q in paths], data.val_fraction, data.split_seed)
+    log.info("ingesting %d videos from %s", len(paths), data.videos)
     entries = []
     for q in paths:
         try:
             entries.append(probe_video(q, p))
         except BadInputError as exc:
-            if data["on_bad_input"] != "skip":
+            if data.on_bad_input != "skip":
                 raise LipsynthError(f"{exc} (set data.on_bad_input: skip to leave such videos out)") from None
             log.warning("skipping %s", exc)
     if not entries:
-        raise LipsynthError(f"{data['videos']}: no usable videos")
-    S, sh = p["crop_size"], p["shard_frames"]
-    sh_audio, sh_mfcc = 16000 * p["shard_seconds"], 100 * p["shard_seconds"]
+        raise LipsynthError(f"{data.videos}: no usable videos")
+    S, sh = p.crop_size, p.shard_frames
+    sh_audio, sh_mfcc = 16000 * p.shard_seconds, 100 * p.shard_seconds
     n_frames, n_samples, n_mfcc = layout(entries, sh, sh_audio, sh_mfcc)
     for i, e in enumerate(entries):
         e["id"], e["split"] = i, splits[e["name"]]
-    with atomic_output(out) as tmp, client_for(params["cluster"]) as client:
+    with atomic_output(out) as tmp, client_for(params.cluster) as client:
         g = create_group(tmp)
-        create_timed(g, "crops", n_frames, (S * 3 // 2, S), "uint8", sh, p["chunk_frames"])
+        create_timed(g, "crops", n_frames, (S * 3 // 2, S), "uint8", sh, p.chunk_frames)
         create_timed(g, "frame_time", n_frames, (), "float64", sh, sh, fill_value=float("nan"))
         create_timed(g, "video_id", n_frames, (), "int32", sh, sh, fill_value=-1)
         create_timed(g, "audio", n_samples, (), "int16", sh_audio, sh_audio // 10)
@@ -312,7 +313,7 @@ def run(params: dict, out: str) -> list[dict]:
         results = run_tasks(client, ingest_video, jobs, "ingest", "frame", [e["cap_frames"] for e in entries])
         for e, r in zip(entries, results):
             if "error" in r:
-                if data["on_bad_input"] != "skip":
+                if data.on_bad_input != "skip":
                     raise LipsynthError(r["error"] + " (set data.on_bad_input: skip to leave such videos out)")
                 log.warning("skipping %s", r["error"])
                 e.update(n_frames=0, n_samples=0, n_mfcc=0, crop=[0.0, 0.0, 1.0], audio_offset=0.0, excluded=True)
@@ -324,14 +325,14 @@ def run(params: dict, out: str) -> list[dict]:
                         "crop_size": S, "crop_format": "I420"})
     kept = [e for e in entries if not e.get("excluded")]
     if not kept:
-        raise LipsynthError(f"{data['videos']}: no usable videos")
+        raise LipsynthError(f"{data.videos}: no usable videos")
     log.info("stored %d frames of %d videos (%d train, %d val) in %s", sum(e["n_frames"] for e in kept), len(kept),
              sum(e["split"] == "train" for e in kept), sum(e["split"] == "val" for e in kept), out)
     return entries
 
 
 def main(argv=None) -> int:
-    return stage_main("lipsynth ingest", __doc__, lambda p: run(p, p["ingest"]["out"]), argv)
+    return stage_main("lipsynth ingest", __doc__, lambda p: run(p, p.ingest.out), argv)
 
 
 if __name__ == "__main__":

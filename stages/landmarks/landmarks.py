@@ -29,6 +29,7 @@ import numpy as np
 from pipeline import face
 from pipeline.errors import LipsynthError
 from pipeline.parallel import client_for, run_tasks
+from pipeline.params import Landmarks, Params
 from pipeline.runner import stage_main
 from pipeline.store import (atomic_output, create_group, create_timed, occupied_shards, open_group,
                             video_of_frames, videos_in)
@@ -60,13 +61,13 @@ def landmark_confidence(gray: np.ndarray, box: np.ndarray, lm: np.ndarray, jitte
     return float(np.clip(1.0 - shift, 0.0, 1.0))
 
 
-def track_video(grays, p: dict):
+def track_video(grays, p: Landmarks):
     """Landmarks for consecutive frames of one video.
 
     Parameters
     ----------
     grays : iterable of (S, S) uint8
-    p : dict
+    p : pipeline.params.Landmarks
         landmarks params: detect_every, detect_upsample, jitter, min_confidence, margin.
 
     Returns
@@ -77,9 +78,9 @@ def track_video(grays, p: dict):
     box, relation, since = None, None, 0
     for gray in grays:
         s = gray.shape[0]
-        det = box is None or since >= p["detect_every"]
+        det = box is None or since >= p.detect_every
         if det:
-            found = face.detect_face(gray, p["detect_upsample"])
+            found = face.detect_face(gray, p.detect_upsample)
             if found is not None:
                 box, since = found[0], 0
                 relation = None
@@ -88,9 +89,9 @@ def track_video(grays, p: dict):
             lms.append(np.zeros((68, 2), np.float32)); conf.append(0.0); valid.append(False)
             continue
         lm = face.predict_landmarks(gray, box)
-        c = landmark_confidence(gray, box, lm, p["jitter"])
-        inside = bool(np.all(lm > -p["margin"] * s) and np.all(lm < (1 + p["margin"]) * s))
-        ok = c >= p["min_confidence"] and inside
+        c = landmark_confidence(gray, box, lm, p.jitter)
+        inside = bool(np.all(lm > -p.margin * s) and np.all(lm < (1 + p.margin) * s))
+        ok = c >= p.min_confidence and inside
         lms.append(lm); conf.append(c); valid.append(ok)
         if ok:
             if relation is None:
@@ -131,12 +132,12 @@ def landmark_block(job: dict) -> dict:
     return counts
 
 
-def run(params: dict, ingest_path: str, out: str) -> list[dict]:
-    p, data = params["landmarks"], params["data"]
+def run(params: Params, ingest_path: str, out: str) -> list[dict]:
+    p, data = params.landmarks, params.data
     src = open_group(ingest_path)
     videos = [dict(v) for v in src.attrs["videos"]]
     n, shard = src["crops"].shape[0], src["crops"].shards[0]
-    with atomic_output(out) as tmp, client_for(params["cluster"]) as client:
+    with atomic_output(out) as tmp, client_for(params.cluster) as client:
         g = create_group(tmp)
         create_timed(g, "landmarks", n, (68, 2), "float32", shard, shard)
         create_timed(g, "confidence", n, (), "float32", shard, shard)
@@ -153,11 +154,11 @@ def run(params: dict, ingest_path: str, out: str) -> list[dict]:
                 counts[k] = counts.get(k, 0) + c
         for v in videos:
             v["valid_fraction"] = counts.get(v["name"], 0) / max(v["n_frames"], 1)
-            v["excluded"] = v["valid_fraction"] < p["min_valid_fraction"]
+            v["excluded"] = v["valid_fraction"] < p.min_valid_fraction
             if v["excluded"]:
                 msg = (f"{v['path']}: face tracked in only {100 * v['valid_fraction']:.1f}% of frames "
-                       f"(landmarks.min_valid_fraction={p['min_valid_fraction']})")
-                if data["on_bad_input"] != "skip":
+                       f"(landmarks.min_valid_fraction={p.min_valid_fraction})")
+                if data.on_bad_input != "skip":
                     raise LipsynthError(msg + " — set data.on_bad_input: skip to leave it out")
                 log.warning("excluding %s", msg)
         g.attrs.update({"videos": videos, "coordinates": "source frame pixels"})
@@ -168,7 +169,7 @@ def run(params: dict, ingest_path: str, out: str) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    return stage_main("lipsynth landmarks", __doc__, lambda p: run(p, p["ingest"]["out"], p["landmarks"]["out"]), argv)
+    return stage_main("lipsynth landmarks", __doc__, lambda p: run(p, p.ingest.out, p.landmarks.out), argv)
 
 
 if __name__ == "__main__":

@@ -19,24 +19,18 @@ Run: ``python -m stages.pca.pca``.
 """
 from __future__ import annotations
 
-import hashlib
 import logging
 
 import numpy as np
 
 from pipeline.errors import LipsynthError
+from pipeline.face import IOD_MM, LIP_POINTS
+from pipeline.mouth_pca import fingerprint, lip_vectors, project
+from pipeline.params import Params
 from pipeline.runner import stage_main
 from pipeline.store import atomic_output, create_group, create_timed, open_group
 
 log = logging.getLogger("lipsynth.pca")
-
-LIP_POINTS = list(range(48, 60)) + [61, 62, 63, 65, 66, 67]     # 12 outer + 6 inner = 18
-INNER_TOP, INNER_BOTTOM = 62, 66                                # inner-lip midpoints (opening)
-
-
-def lip_vectors(frontal_landmarks: np.ndarray) -> np.ndarray:
-    """(N, 68, 2) frontal landmarks → (N, 36) lip vectors [x0, y0, x1, y1, …] (canonical px)."""
-    return frontal_landmarks[:, LIP_POINTS].reshape(len(frontal_landmarks), -1)
 
 
 def fit_pca(x: np.ndarray, n_components: int) -> dict:
@@ -50,24 +44,6 @@ def fit_pca(x: np.ndarray, n_components: int) -> dict:
     comps *= np.where(comps[np.arange(n_components), np.abs(comps).argmax(1)] < 0, -1, 1)[:, None]  # sign convention
     return dict(mean=mean, components=comps, explained_variance=var[:n_components],
                 explained_variance_ratio=var[:n_components] / var.sum())
-
-
-def project(x: np.ndarray, basis: dict) -> np.ndarray:
-    """(n, 36) → (n, k) coefficients."""
-    return (x - basis["mean"]) @ basis["components"].T
-
-
-def reconstruct(coeffs: np.ndarray, basis: dict) -> np.ndarray:
-    """(n, k) coefficients → (n, 18, 2) lip points in canonical texture pixels."""
-    return (coeffs @ basis["components"] + basis["mean"]).reshape(len(coeffs), -1, 2)
-
-
-def fingerprint(basis: dict) -> str:
-    """Short hash identifying a PCA basis (a model trained on another basis must not use this one)."""
-    h = hashlib.sha1()
-    for k in ("mean", "components"):
-        h.update(np.ascontiguousarray(basis[k], np.float32).tobytes())
-    return h.hexdigest()[:16]
 
 
 def resample_to_100hz(coeffs: np.ndarray, valid: np.ndarray, frame_time: np.ndarray, n_out: int,
@@ -94,8 +70,8 @@ def resample_to_100hz(coeffs: np.ndarray, valid: np.ndarray, frame_time: np.ndar
     return out.astype(np.float32), ok
 
 
-def run(params: dict, ingest_path: str, landmarks_path: str, frontalize_path: str, out: str) -> dict:
-    p = params["pca"]
+def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: str, out: str) -> dict:
+    p = params.pca
     src, lmg, fr = open_group(ingest_path), open_group(landmarks_path), open_group(frontalize_path)
     videos = [dict(v) for v in fr.attrs["videos"]]
     flm = np.asarray(fr["frontal_landmarks"][...], np.float64)
@@ -105,38 +81,38 @@ def run(params: dict, ingest_path: str, landmarks_path: str, frontalize_path: st
     for v in videos:
         if v["split"] == "train" and not v.get("excluded"):
             train[v["first_frame"]:v["first_frame"] + v["n_frames"]] = True
-    basis = fit_pca(x[train & valid], p["n_components"])
+    basis = fit_pca(x[train & valid], p.n_components)
     coeffs = np.where(valid[:, None], project(x, basis), np.nan).astype(np.float32)
     frame_time = np.asarray(src["frame_time"][...])
     M = src["mfcc"].shape[0]
-    c100 = np.zeros((M, p["n_components"]), np.float32)
+    c100 = np.zeros((M, p.n_components), np.float32)
     v100 = np.zeros(M, bool)
     for v in videos:
         f0, n, m0, m = v["first_frame"], v["n_frames"], v["first_mfcc"], v["n_mfcc"]
         c100[m0:m0 + m], v100[m0:m0 + m] = resample_to_100hz(
             np.nan_to_num(coeffs[f0:f0 + n]), valid[f0:f0 + n] & ~v.get("excluded", False), frame_time[f0:f0 + n], m)
-    iod_px = 90.0 / fr.attrs["texture_window"]["mm_per_px"]
+    iod_px = IOD_MM / fr.attrs["texture_window"]["mm_per_px"]
     with atomic_output(out) as tmp:
         g = create_group(tmp, dict(lip_points=LIP_POINTS, fingerprint=fingerprint(basis), iod_px=iod_px,
-                                   videos=videos, n_components=p["n_components"],
+                                   videos=videos, n_components=p.n_components,
                                    units="canonical texture pixels"))
         shard = src["crops"].shards[0]
-        create_timed(g, "coeffs", len(x), (p["n_components"],), "float32", shard, shard,
+        create_timed(g, "coeffs", len(x), (p.n_components,), "float32", shard, shard,
                      fill_value=float("nan"))[:] = coeffs
         create_timed(g, "valid", len(x), (), "bool", shard, shard, fill_value=False)[:] = valid
-        create_timed(g, "coeffs_100hz", M, (p["n_components"],), "float32", 6000, 6000)[:] = c100
+        create_timed(g, "coeffs_100hz", M, (p.n_components,), "float32", 6000, 6000)[:] = c100
         create_timed(g, "valid_100hz", M, (), "bool", 6000, 6000, fill_value=False)[:] = v100
         for k, val in basis.items():
             g.create_array(k, data=np.asarray(val, np.float32))
     cum = np.cumsum(basis["explained_variance_ratio"])
     log.info("PCA of %d training lip shapes: %d components explain %.1f%% (first 5: %.1f%%); fingerprint %s",
-             int((train & valid).sum()), p["n_components"], 100 * cum[-1], 100 * cum[min(4, len(cum) - 1)],
+             int((train & valid).sum()), p.n_components, 100 * cum[-1], 100 * cum[min(4, len(cum) - 1)],
              fingerprint(basis))
     return basis
 
 
 def main(argv=None) -> int:
-    return stage_main("lipsynth pca", __doc__, lambda p: run(p, p["ingest"]["out"], p["landmarks"]["out"], p["frontalize"]["out"], p["pca"]["out"]), argv)
+    return stage_main("lipsynth pca", __doc__, lambda p: run(p, p.ingest.out, p.landmarks.out, p.frontalize.out, p.pca.out), argv)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ uses them::
     if len(V) < N:                                                # optional, see extend_by_ping_pong
         idx = extend_by_ping_pong(len(V), N); V = V[idx]          # target frame of ext. k = idx[k]
     mapping = retime(A, V)                                        # (N,) target index per output frame
-    frames = interpolate_repeats(get_frame, mapping)              # iterator of N images
+    frames = interpolate_repeats(get_frame, mapping)              # pipeline.repeats: N images
 
 Reading of the paper's equations
 --------------------------------
@@ -39,21 +39,16 @@ Time base: output frame i is at i / fps on the source audio's clock.
 from __future__ import annotations
 
 import math
-from typing import Callable, Iterator, Sequence, Union
 
-import cv2
 import numpy as np
 
 from pipeline import face
 from pipeline.errors import ParameterError
 
-LEFT_EYE, RIGHT_EYE = slice(36, 42), slice(42, 48)
 REFERENCE_WINDOW_S = 0.010      # speech level is relative to the clip's loudest 10 ms window
 SILENT_PEAK_DBFS = -80.0        # a clip whose loudest 10 ms window is below this is all silence
 NOISE_FLOOR_PERCENTILE = 10     # the noise floor is this percentile of the frame levels
 MAX_ADAPTIVE_DB = -15.0         # the noise-floor rule never raises the threshold above this
-
-FrameSource = Union[Sequence[np.ndarray], Callable[[int], np.ndarray]]
 
 
 # ---------------------------------------------------------------- A(i): speech flags
@@ -286,7 +281,7 @@ def eye_area(landmarks: np.ndarray) -> np.ndarray:
     real footage in ../shared/data (Obama, HDTF, GRID), closed ones 0.006–0.009.
     """
     lm = _check_landmarks(landmarks)
-    area = 0.5 * (_polygon_area(lm[:, LEFT_EYE]) + _polygon_area(lm[:, RIGHT_EYE]))
+    area = 0.5 * (_polygon_area(lm[:, face.RIGHT_EYE]) + _polygon_area(lm[:, face.LEFT_EYE]))
     with np.errstate(invalid="ignore", divide="ignore"):
         return area / face.interocular(lm) ** 2
 
@@ -436,107 +431,3 @@ def extend_by_ping_pong(n_target: int, n_needed: int) -> np.ndarray:
     period = 2 * (m - 1)
     t = np.arange(k, dtype=np.int64) % period
     return np.where(t < m, t, period - t)
-
-
-# ---------------------------------------------------------------- repeated-frame interpolation
-
-def repeat_partners(mapping: np.ndarray) -> np.ndarray:
-    """(N,) int: for an output frame that repeats its predecessor's target frame and is followed
-    by a different one, that following target frame (the half-way partner, §3.3 end); −1 for
-    every other frame (shown as its target frame unchanged, a trailing repeat included)."""
-    idx = np.asarray(mapping, np.int64).ravel()
-    out = np.full(idx.size, -1, np.int64)
-    if idx.size > 2:
-        rep = (idx[1:-1] == idx[:-2]) & (idx[2:] != idx[1:-1])
-        out[1:-1][rep] = idx[2:][rep]
-    return out
-
-
-def interpolate_repeats(source: FrameSource, mapping: np.ndarray) -> Iterator[np.ndarray]:
-    """Yield the N output frames, a repeated frame replaced by the half-way frame (§3.3 end).
-
-    Output frame i with mapping[i] == mapping[i−1] (and a different mapping[i+1]) becomes
-    ``halfway_frame(target[mapping[i]], target[mapping[i+1]])``; a repeat at the last output
-    frame stays a copy. Every other frame is a copy of its target frame, unchanged. Frames are
-    fetched lazily, each target index once (the mapping is monotonic), and at most two are held,
-    so 720p targets never need to fit in memory. ``list(interpolate_repeats(frames, mapping))``
-    gives all frames at once.
-
-    Parameters
-    ----------
-    source : sequence indexed by target frame j, or a callable get(j), giving (H, W, 3) uint8.
-    mapping : (N,) int, target frame per output frame (``retime``).
-
-    Yields
-    ------
-    (H, W, 3) uint8, N images (new arrays; the source frames are not modified).
-    """
-    get = source if callable(source) else source.__getitem__
-    idx = np.asarray(mapping, np.int64).ravel()
-    flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
-    cache: dict[int, np.ndarray] = {}
-
-    def fetch(j: int) -> np.ndarray:
-        if j not in cache:
-            cache[j] = _check_image(get(j), j)
-        return cache[j]
-
-    partner = repeat_partners(idx)
-    for i, j in enumerate(idx.tolist()):
-        for done in [k for k in cache if k < j]:
-            del cache[done]
-        if partner[i] >= 0:
-            yield halfway_frame(fetch(j), fetch(int(partner[i])), flow)
-        else:
-            yield fetch(j).copy()
-
-
-def halfway_frame(prev: np.ndarray, next_: np.ndarray, flow=None, max_side: int = 640) -> np.ndarray:
-    """The frame half-way between two frames, by optical flow (paper §3.3, last paragraph).
-
-    Average of ``prev`` warped by ½·F(prev→next) and ``next_`` warped by ½·F(next→prev).
-    Flow convention (OpenCV): F_{a→b}(x) is where pixel x of a moves to in b,
-    a(x) ≈ b(x + F_{a→b}(x)). A point at p in a sits at p + ½F in the middle frame, so the
-    middle frame is sampled backwards, mid_a(x) = a(x − ½·F_{a→b}(x)) with cv2.remap — the flow
-    is read at the destination pixel rather than the source one, exact where it is smooth.
-
-    Parameters
-    ----------
-    prev, next_ : (H, W, 3) uint8 (any channel order).
-    flow : a cv2.DISOpticalFlow (or any object with ``calc(grey0, grey1, None)``); default DIS
-        fast preset.
-    max_side : the flow is estimated on the frames shrunk by an integer factor so their longer
-        side is at most this (px), then scaled back up.
-
-    Returns
-    -------
-    (H, W, 3) uint8.
-    """
-    if flow is None:
-        flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
-    g0 = cv2.cvtColor(prev, cv2.COLOR_RGB2GRAY)
-    g1 = cv2.cvtColor(next_, cv2.COLOR_RGB2GRAY)
-    h, w = g0.shape
-    k = max(1, int(np.ceil(max(h, w) / max_side)))     # flow is smooth: estimate it on a smaller image
-    if k > 1:
-        small = (w // k, h // k)
-        g0, g1 = cv2.resize(g0, small, interpolation=cv2.INTER_AREA), cv2.resize(g1, small, interpolation=cv2.INTER_AREA)
-    up = lambda f: f if k == 1 else cv2.resize(f, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(k)
-    a = _warp_half(prev, up(flow.calc(g0, g1, None)))
-    b = _warp_half(next_, up(flow.calc(g1, g0, None)))
-    return cv2.addWeighted(a, 0.5, b, 0.5, 0.0)
-
-
-def _warp_half(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """image(x − ½·flow(x)) by bilinear backward sampling; (H, W, 2) flow in pixels (dx, dy)."""
-    h, w = flow.shape[:2]
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    return cv2.remap(image, gx - 0.5 * flow[..., 0], gy - 0.5 * flow[..., 1], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)
-
-
-def _check_image(image: np.ndarray, j: int) -> np.ndarray:
-    img = np.ascontiguousarray(image)
-    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
-        raise ParameterError(f"target frame {j}: expected (H, W, 3) uint8, got {img.dtype} {img.shape}")
-    return img

@@ -20,9 +20,12 @@ of the candidates' weight, ×255, for which a pixel was clothing inpainted by fr
 composite keeps such pixels out of the neck layer), target_frame (N,) int32 (frame
 of the target video shown at output frame i), repeated (N,) bool, lip_points (N, 18, 2)
 predicted, candidate_landmarks (N, 68, 2) weight-averaged landmarks of the candidates, sigma
-(N,); attrs: target (its index entry), frontalize_store, audio, fps, timing (ms/frame).
+(N,); attrs: target (its index entry), fps, n_frames, pool_size, teeth_proxies. Nothing in it
+names a machine-specific path or a time measurement: the same inputs give the same bytes
+(per-phase timing goes to ``logs/synthesize.timing.json``, outside DVC).
 
-Run: ``python -m stages.synthesize.synthesize`` (reads ``synthesize``, ``train`` paths).
+Run: ``python -m stages.synthesize.synthesize``. ``synthesize.target`` names a video of the corpus;
+any other video goes through ``lipsynth speak`` (which preprocesses it outside DVC).
 """
 from __future__ import annotations
 
@@ -35,22 +38,22 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.errors import LipsynthError, ParameterError
+from pipeline.face import IOD_MM, LIP_POINTS
 from pipeline.geometry import euler_degrees
-from pipeline.runner import stage_main
+from pipeline.mouth_prediction import load_audio, predict_mouth
+from pipeline.params import Params, Synthesize
+from pipeline.runner import stage_main, write_timing
 from pipeline.store import atomic_output, create_group, open_group, take
-from stages.frontalize.model3d import IOD_MM
-from stages.pca.pca import LIP_POINTS
 from stages.synthesize import retime as rt
 from stages.synthesize import texture as tx
-from stages.train.predict import load_audio, predict_mouth
 
 log = logging.getLogger("lipsynth.synthesize")
 
 
 def find_video(videos: list[dict], target: str) -> dict | None:
-    """The index entry whose name or path is ``target``."""
+    """The index entry of the corpus video named ``target``."""
     for v in videos:
-        if v["name"] == target or Path(v["path"]) == Path(target).absolute():
+        if v["name"] == target:
             return v
     return None
 
@@ -61,13 +64,13 @@ def usable(fr, lmg, v: dict) -> np.ndarray:
     return np.flatnonzero(np.asarray(fr["pose_valid"][sl]) & np.asarray(lmg["valid"][sl]))
 
 
-def candidate_pool(stores: dict, target: dict, p: dict) -> np.ndarray:
+def candidate_pool(stores: dict, target: dict, p: Synthesize) -> np.ndarray:
     """Global frame indices (into the target's stores) of the candidate pool; target frames first."""
     fr, lmg = stores["frontalize"], stores["landmarks"]
     own = target["first_frame"] + usable(fr, lmg, target)
-    if p.get("exclude_target_from_pool"):
+    if p.exclude_target_from_pool:
         own = own[:0]                                  # evaluation: the true frames may not be copied
-    if len(own) >= p["pool_min"]:
+    if len(own) >= p.pool_min:
         return own
     others = [v for v in fr.attrs["videos"] if v["split"] == "train" and v["n_frames"] and not v.get("excluded")
               and v["name"] != target["name"]]
@@ -75,13 +78,13 @@ def candidate_pool(stores: dict, target: dict, p: dict) -> np.ndarray:
         log.info("candidate pool: the target's %d usable frames (a longer target covers more mouth shapes)", len(own))
         return own
     # whole videos spread evenly over the corpus: contiguous runs are cheap to read from the store
-    room = p["pool_max"] - len(own)
+    room = p.pool_max - len(own)
     per_video = np.median([v["n_frames"] for v in others])
     m = min(len(others), int(np.ceil(room / max(per_video, 1))))
     picked = [others[k] for k in np.unique(np.linspace(0, len(others) - 1, m).round().astype(int))]
     extra = np.concatenate([v["first_frame"] + usable(fr, lmg, v) for v in picked])[:room]
     log.info("target has %d usable frames (< pool_min %d): adding %d training frames of the corpus",
-             len(own), p["pool_min"], len(extra))
+             len(own), p.pool_min, len(extra))
     return np.concatenate([own, extra])
 
 
@@ -104,68 +107,62 @@ def retarget(lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray
     return target_mean + (lips - model_mean) * scale
 
 
-def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray, fps: float, p: dict):
+def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray, fps: float, p: Synthesize):
     """Target frame per output frame (N,) and the repeated flags (§3.3)."""
     M = len(target_landmarks)
-    if not p["retime"]:
+    if not p.retime:
         order = np.arange(M) if n_out <= M else rt.extend_by_ping_pong(M, n_out)
         mapping = order[:n_out] if len(order) >= n_out else np.resize(order, n_out)
         return mapping, np.zeros(n_out, bool)
-    V = rt.motion_speed(target_landmarks) + p["alpha_b"] * rt.blink_flags(target_landmarks, p["blink_threshold"])
-    A = rt.speech_flags(samples, 16000, fps, n_out, p["speech_threshold_db"])
+    V = rt.motion_speed(target_landmarks) + p.alpha_b * rt.blink_flags(target_landmarks, p.blink_threshold)
+    A = rt.speech_flags(samples, 16000, fps, n_out, p.speech_threshold_db)
     order = np.arange(M)
     if n_out > 2 * M:
         order = rt.extend_by_ping_pong(M, n_out)
         log.info("target (%d frames) is shorter than half the audio (%d frames): extended to %d frames by "
                  "ping-pong playback", M, n_out, len(order))
-    mapping = order[rt.retime(A, V[order], p["alpha_s"], p["alpha_u"])]
+    mapping = order[rt.retime(A, V[order], p.alpha_s, p.alpha_u)]
     repeated = np.r_[False, mapping[1:] == mapping[:-1]]
     log.info("re-timing: %d output frames over %d target frames, %d repeated, speech in %.0f%% of the audio",
              n_out, M, int(repeated.sum()), 100 * A.mean())
     return mapping, repeated
 
 
-def open_stores(params: dict, pca: bool = True) -> dict:
-    """The stores synthesize reads (landmarks, frontalize, and pca when asked and present) and
-    the frontalize path."""
-    stores = {k: open_group(params[k]["out"]) for k in ("landmarks", "frontalize")}
-    stores["frontalize_path"] = str(Path(params["frontalize"]["out"]).absolute())
-    if pca and Path(params["pca"]["out"]).is_dir():    # only to check the model's PCA basis
-        stores["pca"] = open_group(params["pca"]["out"])
+def open_stores(params: Params, pca: bool = True) -> dict:
+    """The stores synthesize reads: landmarks, frontalize, and pca when asked and present (only to
+    check the model's PCA basis)."""
+    stores = {"landmarks": open_group(params.landmarks.out), "frontalize": open_group(params.frontalize.out)}
+    if pca and Path(params.pca.out).is_dir():
+        stores["pca"] = open_group(params.pca.out)
     return stores
 
 
-def load_stores(params: dict, target: str) -> tuple[dict, dict]:
-    """The stores that hold ``target`` (a corpus video name or path) and its index entry."""
-    stores = open_stores(params)
-    entry = find_video(stores["frontalize"].attrs["videos"], target)
-    if entry is None and Path(target).is_file():
-        # a video outside the corpus: preprocess it alone with the same settings (cached under store/targets)
-        from pipeline.speak import preprocess_target
-        tp = preprocess_target(Path(target), params, Path(params["synthesize"]["out"]).parent / "targets")
-        stores.update(open_stores(tp, pca=False))
-        entry = stores["frontalize"].attrs["videos"][0]
+def corpus_target(stores: dict, name: str, frontalize_path: str) -> dict:
+    """The index entry of the corpus video ``name`` (``synthesize.target``)."""
+    entry = find_video(stores["frontalize"].attrs["videos"], name)
     if entry is None:
-        raise LipsynthError(f"synthesize.target={target!r}: neither a video of the corpus in "
-                            f"{params['frontalize']['out']} nor a video file")
-    return stores, entry
+        names = [v["name"] for v in stores["frontalize"].attrs["videos"]]
+        raise LipsynthError(f"synthesize.target={name!r}: not a video of the corpus in {frontalize_path} "
+                            f"({', '.join(names[:5])}{', …' if len(names) > 5 else ''}); "
+                            f"for any other video use `lipsynth speak`")
+    return entry
 
 
-def run(params: dict, out: str, stores: dict | None = None, entry: dict | None = None) -> dict:
-    p = params["synthesize"]
-    if stores is None:
-        stores, entry = load_stores(params, p["target"])
+def run(params: Params, out: str, stores: dict, entry: dict) -> dict:
+    """Synthesize the textures of ``entry`` (a video of ``stores``) saying ``synthesize.audio``
+    into ``out``; returns the thread time per output frame of each phase (ms)."""
+    p = params.synthesize
     fr, lmg = stores["frontalize"], stores["landmarks"]
     n_usable = len(usable(fr, lmg, entry))
-    if entry.get("excluded") or not n_usable or n_usable < p["min_target_fraction"] * entry["n_frames"]:
+    if entry.get("excluded") or not n_usable or n_usable < p.min_target_fraction * entry["n_frames"]:
         raise LipsynthError(f"{entry['path']}: target has a tracked face in only {n_usable} of "
-                            f"{entry['n_frames']} frames (synthesize.min_target_fraction={p['min_target_fraction']})")
+                            f"{entry['n_frames']} frames (synthesize.min_target_fraction={p.min_target_fraction})")
     timing: dict = {}
     t0 = t_start = time.perf_counter()
-    samples = load_audio(p["audio"])
-    mouth = predict_mouth(samples, p["model"], entry["fps"], device=p["device"])
-    if p["retarget"] not in ("auto", "always", "never"):
-        raise ParameterError(f"synthesize.retarget={p['retarget']!r}: choose auto, always or never")
+    samples = load_audio(p.audio)
+    mouth = predict_mouth(samples, p.model, entry["fps"], device=p.device)
+    if p.retarget not in ("auto", "always", "never"):
+        raise ParameterError(f"synthesize.retarget={p.retarget!r}: choose auto, always or never")
     same_corpus = "pca" in stores and mouth["pca_fingerprint"] == stores["pca"].attrs["fingerprint"]
     lips = mouth["lip_points"].astype(np.float64)
     store_iod = IOD_MM / fr.attrs["texture_window"]["mm_per_px"]
@@ -188,9 +185,9 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     pool_tex = take(fr["texture"], pool)     # (P, 3T/2, T) I420
     pool_cloth = take(fr["clothing_mask"], pool)                      # (P, T, T) bool: inpainted pixels
     shapes = flm[:, LIP_POINTS]
-    if p["retarget"] == "always" or (p["retarget"] == "auto" and not same_corpus):
+    if p.retarget == "always" or (p.retarget == "auto" and not same_corpus):
         lips = retarget(lips, mouth["mean_shape"], shapes)
-    up, lo = p["teeth_upper"], p["teeth_lower"]
+    up, lo = p.teeth_upper, p.teeth_lower
     def to_pool(j):
         hit = np.flatnonzero(pool == entry["first_frame"] + j) if j is not None else None
         if j is not None and not len(hit):
@@ -201,8 +198,11 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     pose = np.asarray(take(fr["pose"], pool), np.float64)
     yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
     upper, lower = tx.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
-                                         upper=to_pool(up), lower=to_pool(lo))
-    proxies = tx.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower)
+                                         s_max=p.teeth_s_max, v_min=p.teeth_v_min, upper=to_pool(up), lower=to_pool(lo))
+    proxies = tx.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower, sigmas=tuple(p.teeth_sigmas),
+                                     strength=p.teeth_strength, feather_px=p.teeth_feather_px)
+    detail = dict(s_max=p.teeth_s_max, v_min=p.teeth_v_min, feather_px=p.teeth_feather_px,
+                  unsharp_sigma=p.unsharp_sigma, unsharp_amount=p.unsharp_amount)
     log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
              " (given)" if up is not None or lo is not None else " (automatic)")
     T = pool_tex.shape[2]
@@ -211,7 +211,8 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
     phases = dict(candidate_search=0.0, weighted_median=0.0, teeth=0.0)
 
     def one(i):
-        rgb, info = tx.synthesize_texture(lips[i], shapes, lambda idx: pool_tex[idx], flm, p["n"], p["alpha"], proxies)
+        rgb, info = tx.synthesize_texture(lips[i], shapes, lambda idx: pool_tex[idx], flm, p.n, p.alpha, proxies,
+                                          detail)
         w = info["weights"] / info["weights"].sum()
         cloth = np.tensordot(w.astype(np.float32), pool_cloth[info["indices"]].astype(np.float32), 1)
         return rgb, info["landmarks"], info["sigma"], info["seconds"], np.round(cloth * 255).astype(np.uint8)
@@ -224,7 +225,7 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
                              shards=(256, T, T, 3))
         cand = np.zeros((n_out, 68, 2), np.float32)
         sig = np.zeros(n_out, np.float32)
-        with ThreadPoolExecutor(p["threads"]) as ex:
+        with ThreadPoolExecutor(p.threads) as ex:
             for a in tqdm(range(0, n_out, 256), desc="synthesize", unit="block", dynamic_ncols=True):
                 res = list(ex.map(one, range(a, min(a + 256, n_out))))
                 tex[a:a + len(res)] = np.stack([r[0] for r in res])
@@ -241,16 +242,24 @@ def run(params: dict, out: str, stores: dict | None = None, entry: dict | None =
         g.create_array("candidate_landmarks", data=cand)
         g.create_array("sigma", data=sig)
         ms = {k: 1000 * v / n_out for k, v in timing.items()}
-        g.attrs.update(dict(target=entry, frontalize_store=stores["frontalize_path"], audio=str(Path(p["audio"]).absolute()), fps=entry["fps"], n_frames=n_out,
-                            pool_size=int(len(pool)), teeth_proxies=[int(pool[upper]), int(pool[lower])],
-                            timing_ms_per_frame=ms))
+        g.attrs.update(dict(target=entry, fps=entry["fps"], n_frames=n_out, pool_size=int(len(pool)),
+                            teeth_proxies=[int(pool[upper]), int(pool[lower])]))
     log.info("synthesized %d textures in %.1f s (thread time per frame: %s ms)", n_out, time.perf_counter() - t_start,
              ", ".join(f"{k} {v:.1f}" for k, v in ms.items()))
     return ms
 
 
+def run_stage(params: Params) -> dict:
+    """The DVC stage: the corpus video ``synthesize.target`` saying ``synthesize.audio``."""
+    stores = open_stores(params)
+    entry = corpus_target(stores, params.synthesize.target, params.frontalize.out)
+    ms = run(params, params.synthesize.out, stores, entry)
+    write_timing("synthesize", ms)
+    return ms
+
+
 def main(argv=None) -> int:
-    return stage_main("lipsynth synthesize", __doc__, lambda p: run(p, p["synthesize"]["out"]), argv)
+    return stage_main("lipsynth synthesize", __doc__, run_stage, argv)
 
 
 if __name__ == "__main__":

@@ -31,17 +31,11 @@ INNER = np.arange(12, 20)                # 60–67
 INNER_LEFT, INNER_TOP, INNER_RIGHT, INNER_BOTTOM = 12, 14, 16, 18   # 60, 62, 64, 66
 LOWER_LIP = np.array([8, 9, 10, 17, 18, 19])                        # 56–58, 65–67 (follow the jaw)
 
-DEFAULTS = dict(
-    n=50,                    # candidates per frame (paper tunes n by eye, Fig. 4; value not given)
-    alpha=0.9,               # paper's fixed α
-    sigmas=(1.0, 2.0, 4.0),  # px at T=128: single teeth (~3 px), teeth rows, the whole teeth band
-    strength=0.6,            # Eq. 13 s per scale; three overlapping scales add up to ≈ 1.5× detail
-    s_max=0.45,              # HSV saturation ≤ (0–1): GRID's compressed teeth reach S≈0.43
-    v_min=0.45,              # HSV value ≥ (0–1): rejects the dark mouth cavity (V≲0.42)
-    feather_px=1.0,          # Gaussian σ of the soft mask borders
-    unsharp_sigma=1.0,       # px
-    unsharp_amount=0.5,      # I + a (I − G*I) in the mouth region
-)
+# Keyword defaults below equal params.yaml's ``synthesize`` section (n, alpha, teeth_*, unsharp_*),
+# which the stage always passes: sigmas (1, 2, 4) px at T = 128 (single teeth, teeth rows, the
+# teeth band), strength 0.6 (Eq. 13 s per scale), s_max = v_min = 0.45 (HSV teeth thresholds:
+# GRID's compressed teeth reach S ≈ 0.43; the dark cavity has V ≲ 0.42), feather 1 px, unsharp
+# σ 1 px and amount 0.5.
 
 
 # ----------------------------------------------------------------------------- candidates, σ, weights
@@ -234,8 +228,8 @@ def _feather(mask: np.ndarray, px: float) -> np.ndarray:
     return cv2.GaussianBlur(m, (0, 0), px) if px > 0 else m
 
 
-def teeth_mask(texture_rgb: np.ndarray, lip_uv: np.ndarray, s_max: float = DEFAULTS["s_max"],
-               v_min: float = DEFAULTS["v_min"]) -> np.ndarray:
+def teeth_mask(texture_rgb: np.ndarray, lip_uv: np.ndarray, s_max: float = 0.45,
+               v_min: float = 0.45) -> np.ndarray:
     """Teeth pixels (§3.2.3): saturation ≤ s_max and value ≥ v_min inside the inner lip.
 
     Parameters
@@ -298,9 +292,9 @@ def overlay(I01: np.ndarray, H: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- teeth proxy
 
-def proxy_high_pass(proxy_rgb: np.ndarray, lip_uv: np.ndarray, sigmas=DEFAULTS["sigmas"],
-                    strength: float = DEFAULTS["strength"],
-                    feather_px: float = DEFAULTS["feather_px"]) -> np.ndarray:
+def proxy_high_pass(proxy_rgb: np.ndarray, lip_uv: np.ndarray, sigmas=(1.0, 2.0, 4.0),
+                    strength: float = 0.6,
+                    feather_px: float = 1.0) -> np.ndarray:
     """(S, H, W, 3) float32 Eq. 13 high-passes of a proxy, one per σ, kept only inside the
     proxy's inner lip (grown 1 px, feathered; 0.5 = neutral elsewhere) so that lip edges of the
     proxy never reach the median's teeth."""
@@ -310,9 +304,9 @@ def proxy_high_pass(proxy_rgb: np.ndarray, lip_uv: np.ndarray, sigmas=DEFAULTS["
 
 
 def prepare_proxies(upper_rgb: np.ndarray, upper_lip_uv: np.ndarray, lower_rgb: np.ndarray,
-                    lower_lip_uv: np.ndarray, sigmas=DEFAULTS["sigmas"],
-                    strength: float = DEFAULTS["strength"],
-                    feather_px: float = DEFAULTS["feather_px"]) -> dict:
+                    lower_lip_uv: np.ndarray, sigmas=(1.0, 2.0, 4.0),
+                    strength: float = 0.6,
+                    feather_px: float = 1.0) -> dict:
     """Precompute the proxies' high-passes once per target video.
 
     Returns dict(upper=(S,H,W,3), lower=(S,H,W,3) float32, upper_lip_uv, lower_lip_uv (20,2)).
@@ -338,10 +332,10 @@ def _mouth_box(lip: np.ndarray, shape: tuple, margin: int) -> tuple[int, int, in
 
 
 def apply_teeth_detail(median_rgb: np.ndarray, median_lip_uv: np.ndarray, proxies: dict | None,
-                       jaw_shift_uv=None, s_max: float = DEFAULTS["s_max"],
-                       v_min: float = DEFAULTS["v_min"], feather_px: float = DEFAULTS["feather_px"],
-                       unsharp_sigma: float = DEFAULTS["unsharp_sigma"],
-                       unsharp_amount: float = DEFAULTS["unsharp_amount"]) -> np.ndarray:
+                       jaw_shift_uv=None, s_max: float = 0.45,
+                       v_min: float = 0.45, feather_px: float = 1.0,
+                       unsharp_sigma: float = 1.0,
+                       unsharp_amount: float = 0.5) -> np.ndarray:
     """Teeth enhancement with prepared proxies (see ``enhance_teeth``); proxies=None → only the
     unsharp masking. Only a box around the mouth is touched; every other pixel is returned as is.
 
@@ -377,10 +371,10 @@ def apply_teeth_detail(median_rgb: np.ndarray, median_lip_uv: np.ndarray, proxie
 
 def enhance_teeth(median_rgb: np.ndarray, median_lip_uv: np.ndarray, upper_proxy_rgb: np.ndarray,
                   upper_lip_uv: np.ndarray, lower_proxy_rgb: np.ndarray, lower_lip_uv: np.ndarray,
-                  jaw_shift_uv=None, sigmas=DEFAULTS["sigmas"], strength: float = DEFAULTS["strength"],
-                  unsharp_sigma: float = DEFAULTS["unsharp_sigma"],
-                  unsharp_amount: float = DEFAULTS["unsharp_amount"], s_max: float = DEFAULTS["s_max"],
-                  v_min: float = DEFAULTS["v_min"], feather_px: float = DEFAULTS["feather_px"]) -> np.ndarray:
+                  jaw_shift_uv=None, sigmas=(1.0, 2.0, 4.0), strength: float = 0.6,
+                  unsharp_sigma: float = 1.0,
+                  unsharp_amount: float = 0.5, s_max: float = 0.45,
+                  v_min: float = 0.45, feather_px: float = 1.0) -> np.ndarray:
     """Teeth-proxy enhancement of a median texture (§3.2.3, Eq. 13–14) + unsharp masking.
 
     In the median's teeth region (``teeth_mask``, closed 3×3, feathered) the multi-scale
@@ -413,8 +407,8 @@ def enhance_teeth(median_rgb: np.ndarray, median_lip_uv: np.ndarray, upper_proxy
 
 # ----------------------------------------------------------------------------- proxy choice
 
-def teeth_stats(texture_rgb: np.ndarray, lip_uv: np.ndarray, s_max: float = DEFAULTS["s_max"],
-                v_min: float = DEFAULTS["v_min"]) -> tuple[int, int, float]:
+def teeth_stats(texture_rgb: np.ndarray, lip_uv: np.ndarray, s_max: float = 0.45,
+                v_min: float = 0.45) -> tuple[int, int, float]:
     """(upper teeth px, lower teeth px, variance of the grey Laplacian in the outer-lip box)."""
     lip = _lip20(lip_uv)
     teeth = teeth_mask(texture_rgb, lip, s_max, v_min)
@@ -425,8 +419,8 @@ def teeth_stats(texture_rgb: np.ndarray, lip_uv: np.ndarray, s_max: float = DEFA
 
 
 def pick_teeth_proxies(textures, frontal_landmarks: np.ndarray, valid: np.ndarray, yaw=None,
-                       top_k: int = 64, yaw_scale: float = np.radians(10), s_max: float = DEFAULTS["s_max"],
-                       v_min: float = DEFAULTS["v_min"], upper: int | None = None,
+                       top_k: int = 64, yaw_scale: float = np.radians(10), s_max: float = 0.45,
+                       v_min: float = 0.45, upper: int | None = None,
                        lower: int | None = None) -> tuple[int, int]:
     """Automatic choice of the upper- and lower-teeth proxy frames (the paper picks them by hand).
 
@@ -467,8 +461,8 @@ def pick_teeth_proxies(textures, frontal_landmarks: np.ndarray, valid: np.ndarra
 # ----------------------------------------------------------------------------- one frame
 
 def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture: Callable,
-                       frontal_landmarks: np.ndarray, n: int = DEFAULTS["n"],
-                       alpha: float = DEFAULTS["alpha"], proxies: dict | None = None,
+                       frontal_landmarks: np.ndarray, n: int = 50,
+                       alpha: float = 0.9, proxies: dict | None = None,
                        params: dict | None = None) -> tuple[np.ndarray, dict]:
     """One output texture from one mouth shape (§3.2): candidates → σ → weights → weighted
     median → teeth enhancement + unsharp masking.
@@ -495,10 +489,11 @@ def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture
         landmarks (68, 2) weight-averaged candidate landmarks, lip_points (20, 2) = its 48–67,
         seconds: wall time of candidate_search (incl. σ), weighted_median, teeth (incl. unsharp)).
     """
-    unknown = set(params or {}) - {"s_max", "v_min", "feather_px", "unsharp_sigma", "unsharp_amount"}
+    p = dict(s_max=0.45, v_min=0.45, feather_px=1.0, unsharp_sigma=1.0, unsharp_amount=0.5)
+    unknown = set(params or {}) - set(p)
     if unknown:
         raise ValueError(f"synthesize_texture params: unknown {sorted(unknown)} (sigmas/strength go to prepare_proxies)")
-    p = {**DEFAULTS, **(params or {})}
+    p.update(params or {})
     t0 = time.perf_counter()
     idx, d2 = select_candidates(target_shape, shapes, n)
     sigma = solve_sigma(d2, idx, alpha)

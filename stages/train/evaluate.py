@@ -7,15 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.pca.pca import LIP_POINTS, reconstruct
+from pipeline.face import INNER_BOTTOM, INNER_TOP, LIP_POINTS
+from pipeline.mouth_pca import reconstruct
 
-OPEN_TOP, OPEN_BOTTOM = LIP_POINTS.index(62), LIP_POINTS.index(66)
-
-
-def to_frames(c100: np.ndarray, frame_time: np.ndarray, rate: float = 100.0) -> np.ndarray:
-    """Linear interpolation of (m, k) 100 Hz values at frame times (s) → (T, k)."""
-    t = np.arange(len(c100)) / rate
-    return np.stack([np.interp(frame_time, t, c100[:, j]) for j in range(c100.shape[1])], axis=1)
+OPEN_TOP, OPEN_BOTTOM = LIP_POINTS.index(INNER_TOP), LIP_POINTS.index(INNER_BOTTOM)
 
 
 def mouth_error(pred_pts: np.ndarray, true_pts: np.ndarray) -> np.ndarray:

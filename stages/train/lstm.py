@@ -15,29 +15,11 @@ import time
 
 import numpy as np
 import torch
-from torch import nn
+
+from pipeline.delayed_lstm import DelayedLSTM, predict_sequence
+from pipeline.params import Train
 
 log = logging.getLogger("lipsynth.train")
-
-
-def pick_device(name: str = "auto") -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
-
-
-class DelayedLSTM(nn.Module):
-    """LSTM(n_in → hidden) + Linear(hidden → n_out); ``delay`` is carried as metadata."""
-
-    def __init__(self, n_in: int = 28, hidden: int = 60, n_out: int = 20, layers: int = 1):
-        super().__init__()
-        self.lstm = nn.LSTM(n_in, hidden, num_layers=layers, batch_first=True)
-        self.out = nn.Linear(hidden, n_out)
-
-    def forward(self, x: torch.Tensor, state=None):
-        """x (B, T, n_in) → (B, T, n_out), new state."""
-        h, state = self.lstm(x, state)
-        return self.out(h), state
 
 
 def delayed_pairs(x: np.ndarray, y: np.ndarray, ok: np.ndarray, delay: int):
@@ -77,26 +59,7 @@ def masked_l2(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> t
     return (se * mask).sum() / mask.sum().clamp(min=1)
 
 
-@torch.no_grad()
-def predict_sequence(model: DelayedLSTM, x: np.ndarray, delay: int, device, chunk: int | None = None) -> np.ndarray:
-    """Mouth coefficients (m, n_out) for normalised features x (m, n_in), state carried over chunks.
-
-    Runs the m + d delayed steps (zero-padded input) and drops the first d outputs, so output i
-    is the shape at step i. ``chunk`` (steps) streams the input through the LSTM piecewise; the
-    result equals one pass.
-    """
-    model.eval()
-    xd = np.concatenate([x, np.zeros((delay, x.shape[1]), np.float32)]).astype(np.float32)
-    chunk = chunk or len(xd)
-    outs, state = [], None
-    for a in range(0, len(xd), chunk):
-        xb = torch.from_numpy(xd[None, a:a + chunk]).to(device)
-        yb, state = model(xb, state)
-        outs.append(yb[0].cpu().numpy())
-    return np.concatenate(outs)[delay:delay + len(x)]
-
-
-def train(train_seqs: list, val_seqs: list, p: dict, delay: int, device, seed: int = 0,
+def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: int = 0,
           desc: str = "lstm") -> tuple[DelayedLSTM, list[dict]]:
     """Train one model.
 
@@ -114,24 +77,24 @@ def train(train_seqs: list, val_seqs: list, p: dict, delay: int, device, seed: i
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     n_in, n_out = train_seqs[0][0].shape[1], train_seqs[0][1].shape[1]
-    model = DelayedLSTM(n_in, p["hidden"], n_out, p.get("layers", 1)).to(device)
-    opt = torch.optim.Adam(model.parameters(), lr=p["lr"])
+    model = DelayedLSTM(n_in, p.hidden, n_out, p.layers).to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=p.lr)
     shifted = [delayed_pairs(x, y, ok, delay) for x, y, ok in train_seqs]
     history = []
-    bar = tqdm(range(p["epochs"]), desc=f"train {desc} (d={delay})", unit="epoch", dynamic_ncols=True)
+    bar = tqdm(range(p.epochs), desc=f"train {desc} (d={delay})", unit="epoch", dynamic_ncols=True)
     for epoch in bar:
         t0 = time.perf_counter()
         model.train()
-        X, Y, M = (torch.from_numpy(a).to(device) for a in make_streams(shifted, p["batch_size"], p["bptt"], rng))
+        X, Y, M = (torch.from_numpy(a).to(device) for a in make_streams(shifted, p.batch_size, p.bptt, rng))
         state, total, count = None, 0.0, 0.0
-        for a in range(0, X.shape[1], p["bptt"]):
-            pred, state = model(X[:, a:a + p["bptt"]], state)
+        for a in range(0, X.shape[1], p.bptt):
+            pred, state = model(X[:, a:a + p.bptt], state)
             state = tuple(s.detach() for s in state)
-            loss = masked_l2(pred, Y[:, a:a + p["bptt"]], M[:, a:a + p["bptt"]].float())
+            loss = masked_l2(pred, Y[:, a:a + p.bptt], M[:, a:a + p.bptt].float())
             opt.zero_grad()
             loss.backward()
             opt.step()
-            w = float(M[:, a:a + p["bptt"]].sum())
+            w = float(M[:, a:a + p.bptt].sum())
             total, count = total + loss.item() * w, count + w
         val = evaluate_loss(model, val_seqs, delay, device) if val_seqs else float("nan")
         history.append(dict(epoch=epoch + 1, train_loss=total / max(count, 1), val_loss=val,

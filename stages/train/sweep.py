@@ -9,32 +9,34 @@ Run: ``python -m stages.train.sweep``.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import logging
 import os
 from pathlib import Path
 
+from pipeline.params import Params
 from pipeline.runner import stage_main
 
 log = logging.getLogger("lipsynth.sweep")
 
 
-def run(params: dict, ingest_path: str, pca_path: str) -> list[dict]:
-    from stages.train.lstm import pick_device
+def run(params: Params, ingest_path: str, pca_path: str) -> list[dict]:
+    from pipeline.delayed_lstm import pick_device
     from stages.train.train import feature_normalisation, fit_lstm, load_sequences, score
-    p, s = params["train"], params["delay_sweep"]
+    p, s = params.train, params.delay_sweep
     data, basis, pattrs = load_sequences(ingest_path, pca_path)
-    device = pick_device(p["device"])
-    mean, std = feature_normalisation(data, p["feature_norm"])
+    device = pick_device(p.device)
+    mean, std = feature_normalisation(data, p.feature_norm)
     rows = []
-    for d in s["delays"]:
-        _, hist, preds = fit_lstm(data, dict(p, epochs=s["epochs"]), d, device, mean, std, desc="sweep")
+    for d in s.delays:
+        _, hist, preds = fit_lstm(data, dataclasses.replace(p, epochs=s.epochs), d, device, mean, std, desc="sweep")
         sc = score(preds, data, basis, pattrs["iod_px"])
         rows.append(dict(delay_steps=d, delay_ms=10 * d, train_loss=hist[-1]["train_loss"],
                          val_loss=hist[-1]["val_loss"], val_mouth_error_px=sc["mouth_error_px"],
                          median_opening_corr=sc["median_opening_corr"]))
         log.info("delay %3d ms: val loss %.4f, mouth error %.3f px", 10 * d, rows[-1]["val_loss"],
                  rows[-1]["val_mouth_error_px"])
-    out = Path(s["plots"])
+    out = Path(s.plots)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
     with open(tmp, "w", newline="") as f:
@@ -47,7 +49,7 @@ def run(params: dict, ingest_path: str, pca_path: str) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    return stage_main("lipsynth delay-sweep", __doc__, lambda p: run(p, p["ingest"]["out"], p["pca"]["out"]), argv)
+    return stage_main("lipsynth delay-sweep", __doc__, lambda p: run(p, p.ingest.out, p.pca.out), argv)
 
 
 if __name__ == "__main__":

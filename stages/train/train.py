@@ -20,10 +20,12 @@ import numpy as np
 
 from pipeline import audio_features
 from pipeline.errors import LipsynthError, ParameterError
+from pipeline.params import Params, Train, as_dict
 from pipeline.runner import stage_main
 from pipeline.store import atomic_output, open_group
 from stages.train import evaluate
-from stages.train.model_folder import save_model
+from pipeline.model_folder import save_model
+from pipeline.mouth_prediction import to_frames
 
 log = logging.getLogger("lipsynth.train")
 MODELS = ("lstm",)
@@ -76,75 +78,75 @@ def feature_normalisation(data: dict, how: str) -> tuple[np.ndarray, np.ndarray]
     return np.zeros(d, np.float32), np.ones(d, np.float32)
 
 
-def fit_lstm(data: dict, p: dict, delay: int, device, mean, std, desc="lstm"):
+def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm"):
     from stages.train import lstm
     norm = lambda s: ((s["x"] - mean) / std, s["y"], s["ok"])
     model, history = lstm.train([norm(s) for s in data["train"]], [norm(s) for s in data["val"]], p, delay,
-                                device, seed=p["seed"], desc=desc)
+                                device, seed=p.seed, desc=desc)
     preds = [lstm.predict_sequence(model, norm(s)[0], delay, device) for s in data["val"]]
     return model, history, preds
 
 
 def score(preds100: list, data: dict, basis: dict, iod_px: float) -> dict:
-    frames = [evaluate.to_frames(c, s["frame_time"]) for c, s in zip(preds100, data["val"])]
+    frames = [to_frames(c, s["frame_time"]) for c, s in zip(preds100, data["val"])]
     return evaluate.evaluate_videos(frames, [s["frame_y"] for s in data["val"]], [s["frame_ok"] for s in data["val"]],
                                     [s["fps"] for s in data["val"]], basis, iod_px)
 
 
-def run(params: dict, ingest_path: str, pca_path: str) -> dict:
-    from stages.train.lstm import pick_device
-    p = params["train"]
-    if p["model"] not in MODELS:
-        raise ParameterError(f"train.model={p['model']!r}: choose one of {', '.join(MODELS)}")
+def run(params: Params, ingest_path: str, pca_path: str) -> dict:
+    from pipeline.delayed_lstm import pick_device
+    p = params.train
+    if p.model not in MODELS:
+        raise ParameterError(f"train.model={p.model!r}: choose one of {', '.join(MODELS)}")
     data, basis, pattrs = load_sequences(ingest_path, pca_path)
-    device = pick_device(p["device"])
-    mean, std = feature_normalisation(data, p["feature_norm"])
-    log.info("training %s on %d videos (%d steps), validating on %d videos, device %s", p["model"],
+    device = pick_device(p.device)
+    mean, std = feature_normalisation(data, p.feature_norm)
+    log.info("training %s on %d videos (%d steps), validating on %d videos, device %s", p.model,
              len(data["train"]), sum(len(s["x"]) for s in data["train"]), len(data["val"]), device)
-    model, history, preds = fit_lstm(data, p, p["delay"], device, mean, std)
-    metrics = {"model": p["model"], "delay_steps": p["delay"], "train_loss": history[-1]["train_loss"],
+    model, history, preds = fit_lstm(data, p, p.delay, device, mean, std)
+    metrics = {"model": p.model, "delay_steps": p.delay, "train_loss": history[-1]["train_loss"],
                "val_loss": history[-1]["val_loss"], "val": score(preds, data, basis, pattrs["iod_px"])}
     k = basis["components"].shape[0]
     mean_shape = np.concatenate([s["y"][s["ok"]] for s in data["train"]]).mean(0)
     metrics["baseline_mean_shape"] = score([np.tile(mean_shape, (len(s["x"]), 1)) for s in data["val"]],
                                            data, basis, pattrs["iod_px"])
-    curves = {f"{p['model']}": history}
-    if p["baselines"] and p["delay"] != 0:
+    curves = {f"{p.model}": history}
+    if p.baselines and p.delay != 0:
         _, h0, preds0 = fit_lstm(data, p, 0, device, mean, std, desc="baseline")
         metrics["baseline_lstm_delay0"] = dict(score(preds0, data, basis, pattrs["iod_px"]),
                                                val_loss=h0[-1]["val_loss"], train_loss=h0[-1]["train_loss"])
-        curves[f"{p['model']}_delay0"] = h0
+        curves[f"{p.model}_delay0"] = h0
     metrics["ratio_to_mean_shape"] = metrics["val"]["mouth_error_px"] / metrics["baseline_mean_shape"]["mouth_error_px"]
     log.info("validation mouth error: %s %.3f px (%.2f%% IOD); mean shape %.3f px; ratio %.2f",
-             p["model"], metrics["val"]["mouth_error_px"], metrics["val"]["mouth_error_iod_pct"],
+             p.model, metrics["val"]["mouth_error_px"], metrics["val"]["mouth_error_iod_pct"],
              metrics["baseline_mean_shape"]["mouth_error_px"], metrics["ratio_to_mean_shape"])
-    with atomic_output(p["out"]) as tmp:
-        save_model(tmp, model, dict(model=p["model"], delay=p["delay"], hidden=p["hidden"], layers=p.get("layers", 1),
+    with atomic_output(p.out) as tmp:
+        save_model(tmp, model, dict(model=p.model, delay=p.delay, hidden=p.hidden, layers=p.layers,
                                     n_features=int(mean.shape[0]), n_components=k, feature_rate=100.0,
-                                    feature_norm=p["feature_norm"], params=p), mean, std, basis, pattrs)
+                                    feature_norm=p.feature_norm, params=as_dict(p)), mean, std, basis, pattrs)
     write_outputs(metrics, curves, p)
     return metrics
 
 
-def write_outputs(metrics: dict, curves: dict, p: dict) -> None:
-    Path(p["metrics"]).parent.mkdir(parents=True, exist_ok=True)
-    tmp = p["metrics"] + ".tmp"
+def write_outputs(metrics: dict, curves: dict, p: Train) -> None:
+    Path(p.metrics).parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.metrics + ".tmp"
     with open(tmp, "w") as f:
         json.dump(metrics, f, indent=2)
-    os.replace(tmp, p["metrics"])
-    Path(p["plots"]).parent.mkdir(parents=True, exist_ok=True)
-    tmp = p["plots"] + ".tmp"
+    os.replace(tmp, p.metrics)
+    Path(p.plots).parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.plots + ".tmp"
     with open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["model", "epoch", "train_loss", "val_loss"])
         for name, hist in curves.items():
             for h in hist:
                 w.writerow([name, h["epoch"], f"{h['train_loss']:.5f}", f"{h['val_loss']:.5f}"])
-    os.replace(tmp, p["plots"])
+    os.replace(tmp, p.plots)
 
 
 def main(argv=None) -> int:
-    return stage_main("lipsynth train", __doc__, lambda p: run(p, p["ingest"]["out"], p["pca"]["out"]), argv)
+    return stage_main("lipsynth train", __doc__, lambda p: run(p, p.ingest.out, p.pca.out), argv)
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import LipsynthError
+from pipeline.mouth_pca import fingerprint
 
 FILES = ("weights.pt", "config.json", "arrays.npz")
 
@@ -23,7 +24,6 @@ class ModelError(LipsynthError):
 
 def save_model(folder, model, config: dict, feature_mean, feature_std, basis: dict, pca_attrs: dict) -> None:
     import torch
-    from stages.pca.pca import fingerprint
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     torch.save(model.state_dict(), folder / "weights.pt")
@@ -37,8 +37,7 @@ def save_model(folder, model, config: dict, feature_mean, feature_std, basis: di
 def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
     """Load a model folder → (model, config, arrays). Raises ModelError on any inconsistency."""
     import torch
-    from stages.pca.pca import fingerprint
-    from stages.train.lstm import DelayedLSTM
+    from pipeline.delayed_lstm import DelayedLSTM
     folder = Path(folder)
     missing = [f for f in FILES if not (folder / f).exists()]
     if missing:

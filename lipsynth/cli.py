@@ -16,10 +16,11 @@ COMMANDS = {
     "pca": ("stages.pca.pca", "18 frontal lip points → 20 PCA coefficients per frame and at 100 Hz → store/pca.zarr"),
     "train": ("stages.train.train", "train the audio → mouth-shape model (train.model) → models/<model>"),
     "delay-sweep": ("stages.train.sweep", "validation loss of the LSTM for several target delays → plots/"),
-    "predict-mouth": ("stages.train.predict", "per-frame mouth shapes for an audio file from a model folder"),
+    "predict-mouth": ("lipsynth.predict_mouth", "per-frame mouth shapes for an audio file from a model folder"),
     "synthesize": ("stages.synthesize.synthesize", "new audio → re-timed lower-face textures → store/synthesize.zarr"),
     "composite": ("stages.composite.composite", "synthesized textures into the target video → outputs/…/result.mp4"),
-    "speak": ("pipeline.speak", "audio + any video of the speaker → lip-synced MP4 (preprocesses the target)"),
+    "dvc-deps": ("lipsynth.dvc_deps", "check (or --write) the code deps of dvc.yaml's stages, derived from their imports"),
+    "speak": ("lipsynth.speak", "audio + any video of the speaker → lip-synced MP4 (preprocesses the target)"),
 }
 
 

@@ -12,11 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.face import MOUTH as LIPS, interocular  # noqa: F401  (interocular: part of this API)
+from pipeline.params import Landmarks
 
 INNER_TOP, INNER_BOTTOM = [61, 62, 63], [67, 66, 65]
 
 
-def video_landmarks(path, landmark_params: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def video_landmarks(path, landmark_params: Landmarks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Grey frames (N, H, W) uint8, dlib landmarks (N, 68, 2) frame px and validity (N,) of a video."""
     from pipeline import media
     from stages.landmarks.landmarks import track_video

@@ -1,30 +1,23 @@
-"""predict-mouth — per-frame mouth shapes for an audio file, from a trained model folder.
+"""Mouth shapes for new audio from a trained model folder: the interface every model family answers.
 
-    lipsynth predict-mouth AUDIO --model models/lstm [--fps 29.97] [--out shapes.npz] [--chunk-seconds 2]
-
-AUDIO is any file PyAV reads (wav, mp3, m4a, the audio of a video...), any rate and channel
-count: it is mixed to mono, resampled to 16 kHz, RMS-normalised and turned into the paper's
+``predict_mouth(load_audio(path), model_dir, fps)`` is what ``synthesize``, ``lipsynth speak``
+and ``lipsynth predict-mouth`` call. The audio is any file PyAV reads (wav, mp3, m4a, the audio
+of a video...), any rate and channel count: it is mixed to mono, resampled to 16 kHz, RMS-normalised and turned into the paper's
 28-D MFCC features. The LSTM runs over them (in chunks that carry its state, if asked — the
 result equals one pass) and its 100 Hz output is sampled at the video frame times
 t_k = k / fps, k < round(duration · fps).
 
-Output (.npz): coeffs (T, 20) PCA coefficients, lip_points (T, 18, 2) canonical texture pixels,
+Output (dict): coeffs (T, 20) PCA coefficients, lip_points (T, 18, 2) canonical texture pixels,
 frame_time (T,) s, fps, pca_fingerprint.
 """
 from __future__ import annotations
-
-import argparse
-import logging
-import os
-from pathlib import Path
 
 import numpy as np
 
 from pipeline import audio_features, media
 from pipeline.errors import BadInputError, ParameterError
-from pipeline.runner import run_main, setup_logging
+from pipeline.mouth_pca import reconstruct
 
-log = logging.getLogger("lipsynth.predict")
 MIN_SECONDS = 0.5
 
 
@@ -41,13 +34,17 @@ def frame_count(n_samples: int, fps: float, sample_rate: int = audio_features.SA
     return int(np.floor(n_samples / sample_rate * fps + 0.5))
 
 
+def to_frames(c100: np.ndarray, frame_time: np.ndarray, rate: float = 100.0) -> np.ndarray:
+    """Linear interpolation of (m, k) 100 Hz values at frame times (s) → (T, k)."""
+    t = np.arange(len(c100)) / rate
+    return np.stack([np.interp(frame_time, t, c100[:, j]) for j in range(c100.shape[1])], axis=1)
+
+
 def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: float | None = None,
                   device: str = "auto") -> dict:
     """Mouth shapes at ``fps`` for 16 kHz mono ``samples`` (see module doc for the output keys)."""
-    from stages.pca.pca import reconstruct
-    from stages.train.lstm import pick_device, predict_sequence
-    from stages.train.model_folder import load_model
-    from stages.train.evaluate import to_frames
+    from pipeline.delayed_lstm import pick_device, predict_sequence
+    from pipeline.model_folder import load_model
     if not 1 <= fps <= 240:
         raise ParameterError(f"--fps {fps}: expected a video frame rate between 1 and 240")
     dev = pick_device(device)
@@ -65,30 +62,3 @@ def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: flo
     return dict(coeffs=coeffs, lip_points=reconstruct(coeffs, basis).astype(np.float32), frame_time=t,
                 fps=fps, pca_fingerprint=config["pca_fingerprint"], coeffs_100hz=c100,
                 iod_px=config.get("iod_px"), mean_shape=basis["mean"].reshape(-1, 2).astype(np.float32))
-
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="lipsynth predict-mouth", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("audio", help="audio or video file")
-    ap.add_argument("--model", default="models/lstm", help="model folder (default: models/lstm)")
-    ap.add_argument("--fps", type=float, default=25.0, help="output frame rate (25, 29.97, 30, ...)")
-    ap.add_argument("--out", default=None, help="output .npz (default: AUDIO stem + .mouth.npz)")
-    ap.add_argument("--chunk-seconds", type=float, default=None, help="stream the LSTM in chunks of this length")
-    ap.add_argument("--device", default="auto")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    a = ap.parse_args(argv)
-    setup_logging(a.verbose)
-
-    def go():
-        result = predict_mouth(load_audio(a.audio), a.model, a.fps, a.chunk_seconds, a.device)
-        out = Path(a.out or Path(a.audio).with_suffix(".mouth.npz"))
-        tmp = out.with_name(out.name + ".tmp.npz")
-        np.savez(tmp, **{k: v for k, v in result.items() if k != "coeffs_100hz"})
-        os.replace(tmp, out)
-        log.info("%d frames at %.3f fps → %s", len(result["coeffs"]), a.fps, out)
-    return run_main(go)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

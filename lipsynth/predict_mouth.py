@@ -1,0 +1,48 @@
+"""``lipsynth predict-mouth`` — per-frame mouth shapes for an audio file, from a trained model folder.
+
+    lipsynth predict-mouth AUDIO --model models/lstm [--fps 29.97] [--out shapes.npz] [--chunk-seconds 2]
+
+AUDIO is any file PyAV reads (wav, mp3, m4a, the audio of a video...), any rate and channel
+count. Output (.npz): coeffs (T, 20) PCA coefficients, lip_points (T, 18, 2) canonical texture
+pixels, frame_time (T,) s, fps, pca_fingerprint — for T = round(duration · fps) frames.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.mouth_prediction import load_audio, predict_mouth
+from pipeline.runner import run_main, setup_logging
+
+log = logging.getLogger("lipsynth.predict")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="lipsynth predict-mouth", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("audio", help="audio or video file")
+    ap.add_argument("--model", default="models/lstm", help="model folder (default: models/lstm)")
+    ap.add_argument("--fps", type=float, default=25.0, help="output frame rate (25, 29.97, 30, ...)")
+    ap.add_argument("--out", default=None, help="output .npz (default: AUDIO stem + .mouth.npz)")
+    ap.add_argument("--chunk-seconds", type=float, default=None, help="stream the LSTM in chunks of this length")
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("-v", "--verbose", action="store_true")
+    a = ap.parse_args(argv)
+    setup_logging(a.verbose)
+
+    def go():
+        result = predict_mouth(load_audio(a.audio), a.model, a.fps, a.chunk_seconds, a.device)
+        out = Path(a.out or Path(a.audio).with_suffix(".mouth.npz"))
+        tmp = out.with_name(out.name + ".tmp.npz")
+        np.savez(tmp, **{k: v for k, v in result.items() if k != "coeffs_100hz"})
+        os.replace(tmp, out)
+        log.info("%d frames at %.3f fps → %s", len(result["coeffs"]), a.fps, out)
+    return run_main(go)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,46 @@
+"""The cache is trustworthy: the same pipeline run in two differently named (and differently
+long) folders gives identical DVC hashes for every stage's outputs — nothing machine-specific
+(absolute paths, timings) ends up in a tracked output."""
+import shutil
+import subprocess
+
+import pytest
+import yaml
+
+from tests.conftest import ROOT
+from tests.test_dvc_pipeline import dvc
+
+TINY = {
+    "synthetic_speaker": {"n_videos": 3, "seconds_per_video": 4.0},
+    "train": {"epochs": 15, "baselines": False},
+    "delay_sweep": {"delays": [0, 20], "epochs": 5},
+    "synthesize": {"audio": "data/synthetic_speaker/speaker_02.mp4", "pool_min": 100},
+    "composite": {"diagnostic": False},
+}
+
+
+def run_copy(folder):
+    folder.mkdir(parents=True)
+    for name in ("pipeline", "stages", "lipsynth"):
+        shutil.copytree(ROOT / name, folder / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("dvc.yaml", ".dvcignore"):
+        shutil.copy(ROOT / name, folder / name)
+    (folder / ".dvc").mkdir()
+    shutil.copy(ROOT / ".dvc" / "config", folder / ".dvc" / "config")
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    for section, values in TINY.items():
+        params[section].update(values)
+    (folder / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    subprocess.run(["git", "init", "-q"], cwd=folder, check=True)
+    dvc(folder, "repro")
+    return yaml.safe_load((folder / "dvc.lock").read_text())["stages"]
+
+
+@pytest.mark.slow
+def test_two_checkouts_in_different_folders_give_identical_hashes(tmp_path):
+    a = run_copy(tmp_path / "a")
+    b = run_copy(tmp_path / "checkout_in_a_much_longer_folder_name" / "lipsynth")
+    assert set(a) == set(b) and len(a) == 9
+    for stage in a:
+        assert a[stage].get("outs") == b[stage].get("outs"), f"{stage}: outputs differ between the two folders"
+        assert a[stage]["deps"] == b[stage]["deps"], f"{stage}: dependencies differ between the two folders"

@@ -1,0 +1,80 @@
+"""The house's rooms: derived DVC code deps are current, and imports respect the layers."""
+import textwrap
+
+import yaml
+
+from lipsynth import dvc_deps
+from tests.conftest import ROOT
+
+
+def test_dvc_yaml_code_deps_equal_the_imports_of_each_stage():
+    stale = dvc_deps.stale_stages()
+    assert not stale, "dvc.yaml code deps are out of date — run `lipsynth dvc-deps --write`:\n" + "\n".join(
+        f"  {name}: missing {sorted(set(d) - set(c))}, extra {sorted(set(c) - set(d))}"
+        for name, (c, d) in stale.items())
+
+
+def test_layers_pipeline_imports_no_stage_and_stages_import_only_their_own_folder():
+    assert dvc_deps.layer_violations() == []
+
+
+def test_every_project_module_a_stage_runs_is_a_declared_dep():
+    """Independent of the generator: walk each stage's imports by executing them in a fresh
+    interpreter and compare the project files Python actually loaded with dvc.yaml."""
+    import json
+    import subprocess
+    import sys
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    for name, stage in stages.items():
+        entry = dvc_deps.entry_module(stage["cmd"])
+        code = ("import importlib, json, sys; importlib.import_module(%r); "
+                "print(json.dumps(sorted(m.__file__ for m in list(sys.modules.values()) "
+                "if getattr(m, '__file__', None))))" % entry)
+        r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        loaded = {p for p in json.loads(r.stdout.splitlines()[-1]) if p.startswith(str(ROOT) + "/")}
+        loaded = {str(p)[len(str(ROOT)) + 1:] for p in loaded}
+        loaded = {p for p in loaded if p.split("/")[0] in ("pipeline", "stages", "lipsynth")}
+        declared = {d for d in stage["deps"] if d.endswith(".py")}
+        assert loaded <= declared, f"{name}: imports {sorted(loaded - declared)} at load time but does not depend on them"
+
+
+def make_project(root, files):
+    for rel, text in files.items():
+        p = root / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(textwrap.dedent(text))
+
+
+def test_closure_follows_function_level_relative_and_submodule_imports(tmp_path):
+    make_project(tmp_path, {
+        "pipeline/__init__.py": "",
+        "pipeline/a.py": "from .b import thing\n",
+        "pipeline/b.py": "thing = 1\n",
+        "pipeline/unused.py": "",
+        "stages/__init__.py": "",
+        "stages/x/__init__.py": "",
+        "stages/x/run.py": "import numpy\nfrom pipeline import a\ndef f():\n    from stages.x import helper\n",
+        "stages/x/helper.py": "",
+    })
+    deps = dvc_deps.code_deps("python -m stages.x.run --flag", tmp_path)
+    assert deps == ["pipeline/__init__.py", "pipeline/a.py", "pipeline/b.py", "stages/__init__.py",
+                    "stages/x/__init__.py", "stages/x/helper.py", "stages/x/run.py"]
+
+
+def test_layer_check_catches_a_stage_importing_another_stage_and_pipeline_importing_up(tmp_path):
+    make_project(tmp_path, {
+        "pipeline/__init__.py": "",
+        "pipeline/a.py": "def f():\n    from stages.y import z\n",
+        "stages/__init__.py": "",
+        "stages/x/__init__.py": "",
+        "stages/x/run.py": "from stages.y.z import g\nfrom stages.x import own\n",
+        "stages/x/own.py": "",
+        "stages/y/__init__.py": "",
+        "stages/y/z.py": "def g():\n    pass\n",
+        "lipsynth/__init__.py": "",
+    })
+    bad = dvc_deps.layer_violations(tmp_path)
+    assert any(b.startswith("pipeline/a.py: imports stages.y") for b in bad), bad
+    assert any(b.startswith("stages/x/run.py: imports stages.y") for b in bad), bad
+    assert not any("stages.x.own" in b for b in bad), bad

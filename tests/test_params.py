@@ -1,0 +1,60 @@
+"""params.yaml is read once into typed sections; mistakes stop with one line naming the key."""
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from pipeline.errors import ParameterError
+from pipeline.params import Params, as_dict, load_params, parse
+from tests.conftest import ROOT
+
+
+def shipped():
+    return yaml.safe_load((ROOT / "params.yaml").read_text())
+
+
+def test_the_shipped_params_file_equals_the_code_defaults():
+    """A key left out of a params file means the shipped value, never a different hidden one."""
+    assert as_dict(load_params(ROOT / "params.yaml")) == as_dict(Params())
+    assert set(shipped()) == set(as_dict(Params()))
+    for name, section in shipped().items():
+        assert set(section) == set(as_dict(getattr(Params(), name))), f"{name}: keys differ from pipeline/params.py"
+
+
+def test_sections_are_typed_attributes():
+    p = load_params(ROOT / "params.yaml")
+    assert p.ingest.crop_size == 224 and p.synthesize.teeth_upper is None and p.train.baselines is True
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t["ingest"].update(crop_sise=128), r"unknown key ingest\.crop_sise"),
+    (lambda t: t["ingest"].update(crop_size="big"), r"ingest\.crop_size='big': expected int"),
+    (lambda t: t["train"].update(baselines=1), r"train\.baselines=1: expected bool"),
+    (lambda t: t["synthesize"].update(teeth_upper=2.5), r"synthesize\.teeth_upper=2\.5: expected int or null"),
+    (lambda t: t["synthesize"].update(retarget="sometimes"), r"synthesize\.retarget='sometimes': choose one of"),
+    (lambda t: t["data"].update(on_bad_input="ignore"), r"data\.on_bad_input='ignore'"),
+    (lambda t: t.update(frontalise={}), r"unknown section 'frontalise'"),
+    (lambda t: t.update(pca=[1, 2]), r"section 'pca' must be a mapping"),
+])
+def test_a_mistake_names_the_key(edit, message):
+    tree = shipped()
+    edit(tree)
+    with pytest.raises(ParameterError, match=message):
+        parse(tree, "p.yaml")
+
+
+def test_missing_keys_take_the_defaults_and_ints_are_floats():
+    p = parse({"frontalize": {"focal_factor": 2}, "train": {"epochs": 3}})
+    assert p.frontalize.focal_factor == 2 and p.train.epochs == 3 and p.train.hidden == 60
+
+
+def test_a_stage_refuses_a_bad_params_file_with_one_line(tmp_path):
+    tree = shipped()
+    tree["landmarks"]["detect_evry"] = 10
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(tree))
+    r = subprocess.run([sys.executable, "-m", "stages.landmarks.landmarks", "--params", str(tmp_path / "p.yaml")],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [f"lipsynth: error: {tmp_path / 'p.yaml'}: unknown key landmarks.detect_evry "
+                                             f"(known keys: {', '.join(sorted(as_dict(Params().landmarks)))})"]
