@@ -4,7 +4,7 @@ For every clip, the model's predicted inner-lip opening (from the clip's audio) 
 with the opening tracked on the clip's own video (the pipeline's landmark tracker). A model
 that learned its speaker's acoustics rather than speech shows a low correlation here.
 
-    python bench/cross_speaker.py --model /work/grid/models/lstm --model /work/grid/models/lstm_cmvn
+    python bench/cross_speaker.py --model runs/grid_s1/models/lstm
 
 Clips: ../shared/data/obama/obama_0*.mp4 (720p, 29.97 fps) and the two HDTF clips (512², 25 fps).
 """
@@ -19,11 +19,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from lipsynth import lipsync_quality as quality  # noqa: E402
 from pipeline import media  # noqa: E402
+from pipeline.face import LIP_POINTS  # noqa: E402
+from pipeline.mouth_prediction import load_audio, predict_mouth  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
-from stages.composite import quality  # noqa: E402
-from stages.pca.pca import LIP_POINTS  # noqa: E402
-from stages.train.predict import load_audio, predict_mouth  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 TOP, BOTTOM = [LIP_POINTS.index(k) for k in (61, 62, 63)], [LIP_POINTS.index(k) for k in (67, 66, 65)]
@@ -43,7 +43,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", action="append", required=True, help="model folder (repeatable)")
     a = ap.parse_args()
-    lp = load_params(ROOT / "params.yaml")["landmarks"]
+    lp = load_params(ROOT / "params.yaml").landmarks
     clips = sorted((SHARED / "obama").glob("obama_0*.mp4")) + sorted((SHARED / "hdtf").glob("WDA_*.mp4"))
     tracked = {}
     for clip in clips:

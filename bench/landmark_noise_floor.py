@@ -7,6 +7,9 @@ error (canonical texture pixels and % inter-ocular distance) next to the model's
 baselines' validation errors from the train metrics, if given.
 
     python bench/landmark_noise_floor.py --params /path/to/params.yaml [--crf 28] [--max-videos 60]
+
+Run it from the corpus's project root: the params' store paths and the video paths the stores
+record are relative to it.
 """
 from __future__ import annotations
 
@@ -23,14 +26,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline import media  # noqa: E402
+from pipeline.canonical import Surface, TextureWindow, frontal_landmarks  # noqa: E402
+from pipeline.face import IOD_MM, LIP_POINTS  # noqa: E402
 from pipeline.geometry import intrinsics, solve_pose  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.store import open_group  # noqa: E402
 from stages.frontalize import model3d  # noqa: E402
-from stages.frontalize.warp import Surface, TextureWindow, frontal_landmarks  # noqa: E402
 from stages.ingest.ingest import cut_crop  # noqa: E402
 from stages.landmarks.landmarks import track_video  # noqa: E402
-from stages.pca.pca import LIP_POINTS  # noqa: E402
 
 
 def reencode(src: str, dst: str, crf: int) -> None:
@@ -65,28 +68,28 @@ def main():
     ap.add_argument("--max-videos", type=int, default=60)
     a = ap.parse_args()
     params = load_params(a.params)
-    src = open_group(params["ingest"]["out"])
-    lmg = open_group(params["landmarks"]["out"])
-    fr = open_group(params["frontalize"]["out"])
+    src = open_group(params.ingest.out)
+    lmg = open_group(params.landmarks.out)
+    fr = open_group(params.frontalize.out)
     shape = np.asarray(fr["model/shape3d"][...], np.float64)
     g = fr.attrs["grid"]
     surface = Surface(np.asarray(fr["model/depth"][...], np.float64), g["x0"], g["y0"], g["step"])
     win = TextureWindow(**fr.attrs["texture_window"])
-    iod = 90.0 / win.mm_per_px
+    iod = IOD_MM / win.mm_per_px
     S = src.attrs["crop_size"]
     errs, static = [], []
     videos = [v for v in fr.attrs["videos"] if v["split"] == "val" and not v.get("excluded")][:a.max_videos]
     with tempfile.TemporaryDirectory() as tmp:
         for v in videos:
             sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])
-            K = intrinsics(v["width"], v["height"], params["frontalize"]["focal_factor"])
+            K = intrinsics(v["width"], v["height"], params.frontalize.focal_factor)
             x0, y0, s = v["crop"]
             orig = np.asarray(lmg["landmarks"][sl], np.float64)
             ok0 = np.asarray(lmg["valid"][sl])
             dst = str(Path(tmp) / "re.mp4")
             reencode(v["path"], dst, a.crf)
             crops = [cut_crop(yuv, (x0, y0, s * S), S)[:S] for _, yuv in media.iter_frames(dst, fmt="yuv")]
-            lm1, _, ok1, _ = track_video(crops, params["landmarks"])
+            lm1, _, ok1, _ = track_video(crops, params.landmarks)
             lm1 = lm1 * s + np.array([x0, y0])
             n = min(len(lm1), len(orig))
             ok = ok0[:n] & ok1[:n]
@@ -100,7 +103,7 @@ def main():
     print(f"noise floor (tracking vs tracking after re-encode): {e.mean():.3f} px = {100 * e.mean() / iod:.2f}% IOD "
           f"(median {np.median(e):.3f} px)")
     print(f"each clip's own static mean mouth vs its tracking:   {st.mean():.3f} px = {100 * st.mean() / iod:.2f}% IOD")
-    mpath = Path(params["train"]["metrics"])
+    mpath = Path(params.train.metrics)
     if mpath.exists():
         m = json.loads(mpath.read_text())
         for name, d in (("LSTM (d=%d)" % m["delay_steps"], m["val"]), ("LSTM (d=0)", m.get("baseline_lstm_delay0")),

@@ -66,19 +66,19 @@ def run_stage(stage, params):
     from stages.ingest import ingest
     from stages.landmarks import landmarks
     if stage == "ingest":
-        ingest.run(params, params["ingest"]["out"])
+        ingest.run(params, params.ingest.out)
     elif stage == "landmarks":
-        landmarks.run(params, params["ingest"]["out"], params["landmarks"]["out"])
+        landmarks.run(params, params.ingest.out, params.landmarks.out)
     else:
-        frontalize.run(params, params["ingest"]["out"], params["landmarks"]["out"], params["frontalize"]["out"])
+        frontalize.run(params, params.ingest.out, params.landmarks.out, params.frontalize.out)
 
 
 def bench_corpus(name, videos, address, repeats, workdir, cores):
     params = copy.deepcopy(load_params(ROOT / "params.yaml"))
-    params["data"]["videos"] = videos
-    params["cluster"]["address"] = address
+    params.data.videos = videos
+    params.cluster.address = address
     for s in STAGES:
-        params[s]["out"] = str(workdir / f"{name}-{s}.zarr")
+        getattr(params, s).out = str(workdir / f"{name}-{s}.zarr")
     times = {s: [] for s in STAGES}
     peak = {s: 0 for s in STAGES}
     for _ in range(repeats):
@@ -89,7 +89,7 @@ def bench_corpus(name, videos, address, repeats, workdir, cores):
                 times[s].append(time.perf_counter() - t0)
             peak[s] = max(peak[s], rss.peak)
     import zarr
-    g = zarr.open_group(params["ingest"]["out"])
+    g = zarr.open_group(params.ingest.out)
     n = sum(v["n_frames"] for v in g.attrs["videos"])           # real frames (the axis also has gaps)
     print(f"\n== {name}: {len(videos)} videos, {n} frames, {cores} worker processes (1 per core) ==")
     print(f"{'stage':<12}{'median s':>10}{'frames/s':>10}{'/core':>8}{'peak RSS MB':>13}")
@@ -102,7 +102,7 @@ def bench_corpus(name, videos, address, repeats, workdir, cores):
     print("stored bytes/frame:")
     per_frame = 0.0
     for s in STAGES:
-        root = Path(params[s]["out"])
+        root = Path(getattr(params, s).out)
         for arr in sorted(p for p in root.rglob("zarr.json") if p.parent != root and p.parent.name != "model"):
             b = stored_bytes(arr.parent) / n
             per_frame += b

@@ -1,11 +1,11 @@
 """Quality of audio → video on real footage: clips as their own target (paper 000 §4.1, Video J).
 
 Each validation clip of a preprocessed corpus is re-synthesized from its own audio into itself
-without re-timing; the output is compared with the original (``stages.composite.quality``):
+without re-timing; the output is compared with the original (``lipsynth.lipsync_quality``):
 mouth landmark error next to a static mouth, inner-lip opening correlation, mouth-region mean
 absolute difference, sharpness ratio, flicker ratio. Also prints ms/frame per phase.
 
-    python bench/synthesis_quality.py --params /work/grid/params.yaml --clips 10 --exclude-target
+    python bench/synthesis_quality.py --params runs/grid_s1/params.yaml --clips 20 --exclude-target
 
 ``--params`` is the corpus's params file (its stores and model); the synthesize/composite
 settings come from the project's params.yaml. Writes ``--out``/quality.json, per-clip MP4s and
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import json
 import logging
 import shutil
@@ -28,9 +29,10 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.params import load_params  # noqa: E402
+from lipsynth import lipsync_quality as quality  # noqa: E402
+from pipeline.params import check, load_params  # noqa: E402
 from pipeline.runner import setup_logging  # noqa: E402
-from stages.composite import composite, quality  # noqa: E402
+from stages.composite import composite  # noqa: E402
 from stages.synthesize import synthesize  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -70,22 +72,23 @@ def main() -> None:
     results, timings, walls = [], [], []
     for v in videos:
         p = copy.deepcopy(corpus)
-        p["synthesize"] = {**project["synthesize"], "audio": v["path"], "target": v["name"], "retime": False,
-                           "model": corpus["train"]["out"], "exclude_target_from_pool": a.exclude_target}
-        p["composite"] = {**project["composite"], "diagnostic": False}
+        p.synthesize = dataclasses.replace(project.synthesize, audio=v["path"], target=v["name"], retime=False,
+                                           model=corpus.train.out, exclude_target_from_pool=a.exclude_target)
+        p.composite = dataclasses.replace(project.composite, diagnostic=False)
         for item in a.set:
             key, value = item.split("=", 1)
             section, name = key.split(".", 1)
-            p[section][name] = yaml.safe_load(value)
+            setattr(getattr(p, section), name, yaml.safe_load(value))
+            check(getattr(p, section), section, "--set")
         store = a.out / f".{v['name']}.synthesize.zarr"
         mp4 = a.out / f"{v['name']}.mp4"
         t0 = time.perf_counter()
         ms = synthesize.run(p, str(store), stores, v)
-        ms.update(composite.run(p, str(store), str(mp4)))
+        ms.update(composite.run(p, str(store), str(mp4), corpus.frontalize.out, v["path"], v["path"]))
         walls.append((time.perf_counter() - t0) / v["n_frames"])
         shutil.rmtree(store, ignore_errors=True)
-        out = quality.video_landmarks(mp4, corpus["landmarks"])
-        ref = quality.video_landmarks(v["path"], corpus["landmarks"])
+        out = quality.video_landmarks(mp4, corpus.landmarks)
+        ref = quality.video_landmarks(v["path"], corpus.landmarks)
         q = quality.compare(*out, *ref)
         q["clip"] = v["name"]
         results.append(q)

@@ -3,11 +3,13 @@
     python bench/synthesize.py --repeats 3
 
 GRID size: a validation clip of the preprocessed GRID corpus (``--grid-params``, default
-/work/grid/params.yaml) as target, 32 s of radio speech (../shared/data/hdtf) as audio,
+runs/grid_s1/params.yaml) as target, 32 s of radio speech (../shared/data/hdtf) as audio,
 re-timing on (the 3 s target is extended by ping-pong). 720p: ``obama_08.mp4`` as target
 (preprocessed once into bench/results/cache with a 448 px crop and 192 px texture, as
 ``lipsynth speak`` would), the same kind of audio. The model is the GRID model. Preprocessing
-of the target is not timed (it is cached); model loading is (in "prediction").
+of the target is not timed (it is cached); model loading is (in "prediction"). Run it from the
+GRID corpus's project root: its params' store paths and the video paths its stores record are
+relative to it.
 
 Phases: prediction (audio → MFCC → LSTM → shapes; includes torch's first-call set-up),
 retiming, candidate_pool (reading the pool's textures), candidate_search, weighted_median,
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import shutil
 import sys
 import time
@@ -31,9 +34,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.params import load_params  # noqa: E402
+from lipsynth.target import preprocess_target  # noqa: E402
+from pipeline.params import Params, load_params  # noqa: E402
 from pipeline.runner import setup_logging  # noqa: E402
-from pipeline.speak import preprocess_target  # noqa: E402
+from pipeline.store import open_group  # noqa: E402
 from stages.composite import composite  # noqa: E402
 from stages.synthesize import synthesize  # noqa: E402
 
@@ -59,13 +63,14 @@ def long_speech(out: Path) -> Path:
     return out
 
 
-def one_run(p: dict, stores: dict, entry: dict, work: Path) -> tuple[dict, float, int]:
+def one_run(p: Params, stores: dict, entry: dict, video: str, work: Path) -> tuple[dict, float, int]:
+    """Synthesize + composite ``entry`` (source video ``video``) saying ``p.synthesize.audio``."""
     store = work / "synthesize.zarr"
     t0 = time.perf_counter()
     ms = synthesize.run(p, str(store), stores, entry)
-    ms.update(composite.run(p, str(store), str(work / "out.mp4")))
+    ms.update(composite.run(p, str(store), str(work / "out.mp4"), p.frontalize.out, video, p.synthesize.audio))
     wall = time.perf_counter() - t0
-    n = synthesize.open_group(str(store)).attrs["n_frames"]
+    n = open_group(str(store)).attrs["n_frames"]
     shutil.rmtree(store, ignore_errors=True)
     return ms, wall, n
 
@@ -83,13 +88,13 @@ def report(name: str, runs: list) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--grid-params", default="/work/grid/params.yaml", help="params of the preprocessed GRID corpus")
+    ap.add_argument("--grid-params", default="runs/grid_s1/params.yaml", help="params of the preprocessed GRID corpus")
     ap.add_argument("--audio", default=None, help="speech file (default: 32 s of radio speech, see long_speech)")
     ap.add_argument("--only", choices=["grid", "720p"], default=None)
     a = ap.parse_args()
     setup_logging()
     import logging
-    for name in ("lipsynth.synthesize", "lipsynth.composite", "lipsynth.speak", "lipsynth.ingest",
+    for name in ("lipsynth.synthesize", "lipsynth.composite", "lipsynth.speak", "lipsynth.target", "lipsynth.ingest",
                  "lipsynth.landmarks", "lipsynth.frontalize", "lipsynth.parallel"):
         logging.getLogger(name).setLevel(logging.WARNING)
     project = load_params(ROOT / "params.yaml")
@@ -103,24 +108,25 @@ def main() -> None:
         entry = sorted([v for v in stores["frontalize"].attrs["videos"] if v["split"] == "val"
                         and not v.get("excluded")], key=lambda v: v["name"])[0]
         p = copy.deepcopy(corpus)
-        p["synthesize"] = {**project["synthesize"], "audio": a.audio, "target": entry["name"],
-                           "model": corpus["train"]["out"]}
-        p["composite"] = {**project["composite"], "diagnostic": False}
-        report(f"GRID {entry['width']}×{entry['height']} (target {entry['name']}, pool {p['synthesize']['pool_max']} "
-               f"frames)", [one_run(p, stores, entry, work) for _ in range(a.repeats)])
+        p.synthesize = dataclasses.replace(project.synthesize, audio=a.audio, target=entry["name"],
+                                           model=corpus.train.out)
+        p.composite = dataclasses.replace(project.composite, diagnostic=False)
+        report(f"GRID {entry['width']}×{entry['height']} (target {entry['name']}, pool {p.synthesize.pool_max} "
+               f"frames)", [one_run(p, stores, entry, entry["path"], work) for _ in range(a.repeats)])
 
     if a.only in (None, "720p"):
         target = SHARED / "obama" / "obama_08.mp4"
         base = copy.deepcopy(project)
-        base["ingest"]["crop_size"] = 448
-        base["frontalize"]["texture_size"] = 192
+        base.ingest.crop_size = 448
+        base.frontalize.texture_size = 192
         p = preprocess_target(target, base, ROOT / "bench" / "results" / "cache")
         stores = synthesize.open_stores(p, pca=False)
         entry = stores["frontalize"].attrs["videos"][0]
-        p["synthesize"].update(audio=a.audio, target=str(target), model=load_params(a.grid_params)["train"]["out"])
-        p["composite"]["diagnostic"] = False
+        p.synthesize = dataclasses.replace(p.synthesize, audio=a.audio, target=str(target),
+                                           model=load_params(a.grid_params).train.out)
+        p.composite = dataclasses.replace(p.composite, diagnostic=False)
         report(f"720p {entry['width']}×{entry['height']} (target obama_08, its own {entry['n_frames']} frames)",
-               [one_run(p, stores, entry, work) for _ in range(a.repeats)])
+               [one_run(p, stores, entry, str(target), work) for _ in range(a.repeats)])
 
 
 if __name__ == "__main__":

@@ -21,11 +21,12 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.params import load_params  # noqa: E402
+from pipeline.delayed_lstm import DelayedLSTM, pick_device  # noqa: E402
+from pipeline.model_folder import save_model  # noqa: E402
+from pipeline.mouth_prediction import predict_mouth  # noqa: E402
+from pipeline.params import as_dict, load_params  # noqa: E402
 from stages.pca.pca import fit_pca  # noqa: E402
 from stages.train import lstm  # noqa: E402
-from stages.train.model_folder import save_model  # noqa: E402
-from stages.train.predict import predict_mouth  # noqa: E402
 
 
 def main():
@@ -34,12 +35,12 @@ def main():
     ap.add_argument("--device", default="auto")
     ap.add_argument("--windows", type=int, default=20, help="training windows per timed run")
     a = ap.parse_args()
-    p = load_params(ROOT / "params.yaml")["train"]
-    dev = lstm.pick_device(a.device)
+    p = load_params(ROOT / "params.yaml").train
+    dev = pick_device(a.device)
     torch.manual_seed(0)
-    model = lstm.DelayedLSTM(28, p["hidden"], 20, p["layers"]).to(dev)
-    opt = torch.optim.Adam(model.parameters(), lr=p["lr"])
-    B, T = p["batch_size"], p["bptt"]
+    model = DelayedLSTM(28, p.hidden, 20, p.layers).to(dev)
+    opt = torch.optim.Adam(model.parameters(), lr=p.lr)
+    B, T = p.batch_size, p.bptt
     x = torch.randn(B, T * a.windows, 28, device=dev)
     y = torch.randn(B, T * a.windows, 20, device=dev)
     m = torch.ones(B, T * a.windows, device=dev)
@@ -60,12 +61,12 @@ def main():
         rates.append(B * T * a.windows / (time.perf_counter() - t0))
     rate = statistics.median(rates[1:])   # the first run warms up
     print(f"device {dev}, torch {torch.__version__}, {torch.get_num_threads()} threads")
-    print(f"training: LSTM {p['hidden']} cells, batch {B} × bptt {T}: {rate:,.0f} sequence steps/s "
+    print(f"training: LSTM {p.hidden} cells, batch {B} × bptt {T}: {rate:,.0f} sequence steps/s "
           f"(median of {a.repeats}); one epoch of a 17-hour corpus (6.1 M steps at 100 Hz) ≈ {6.12e6 / rate / 60:.1f} min")
     with tempfile.TemporaryDirectory() as folder:
         basis = fit_pca(np.random.default_rng(0).normal(size=(200, 36)), 20)
-        save_model(folder, model.cpu(), dict(model="lstm", delay=p["delay"], hidden=p["hidden"], layers=p["layers"],
-                                             n_features=28, n_components=20, feature_rate=100.0, params=p),
+        save_model(folder, model.cpu(), dict(model="lstm", delay=p.delay, hidden=p.hidden, layers=p.layers,
+                                             n_features=28, n_components=20, feature_rate=100.0, params=as_dict(p)),
                    np.zeros(28, np.float32), np.ones(28, np.float32), basis, dict(lip_points=list(range(18)), iod_px=72.0))
         for seconds in (10.0, 60.0):
             audio = (np.random.default_rng(1).normal(size=int(seconds * 16000)) * 0.1).astype(np.float32)

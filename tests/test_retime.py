@@ -1,7 +1,6 @@
 """Video re-timing (paper 000 §3.3): DP optimality and constraints, speech/blink/motion signals,
 ping-pong extension and half-way interpolation of repeated frames."""
 import itertools
-import time
 
 import numpy as np
 import pytest
@@ -106,12 +105,15 @@ def test_retime_rejects_a_target_shorter_than_half_the_output():
         retime(np.ones(21, bool), np.ones(10))
 
 
-def test_retime_is_fast_enough():
+def test_retime_of_a_long_clip_is_a_valid_path():
+    """2000 output frames over 1500 target frames: monotone, steps of 0 or 1, no frame shown
+    three times in a row (speed is measured in bench/retime.py, not here)."""
     rng = np.random.default_rng(3)
-    A, V = rng.random(2000) < 0.7, rng.random(2000)
-    t0 = time.perf_counter()
-    retime(A, V)
-    assert time.perf_counter() - t0 < 1.0            # ~0.05 s typical; loose for a busy machine
+    A, V = rng.random(2000) < 0.7, rng.random(1500)
+    m = retime(A, V)
+    steps = np.diff(m)
+    assert len(m) == 2000 and set(np.unique(steps)) <= {0, 1}
+    assert not np.any((steps[1:] == 0) & (steps[:-1] == 0))
 
 
 # ---------------------------------------------------------------- ping-pong
