@@ -14,7 +14,7 @@ import numpy as np
 from pipeline.face import MOUTH as LIPS, interocular  # noqa: F401  (interocular: part of this API)
 from pipeline.params import Landmarks
 
-INNER_TOP, INNER_BOTTOM = [61, 62, 63], [67, 66, 65]
+UPPER_INNER_LIP, LOWER_INNER_LIP = [61, 62, 63], [67, 66, 65]      # facing pairs of the inner lip
 
 
 def video_landmarks(path, landmark_params: Landmarks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -42,7 +42,7 @@ def static_mouth(truth: np.ndarray) -> np.ndarray:
 
 def inner_opening(lms: np.ndarray) -> np.ndarray:
     """(N,) inner-lip opening: mean vertical gap between the inner upper and lower lip, px."""
-    return (lms[:, INNER_BOTTOM, 1] - lms[:, INNER_TOP, 1]).mean(-1)
+    return (lms[:, LOWER_INNER_LIP, 1] - lms[:, UPPER_INNER_LIP, 1]).mean(-1)
 
 
 def mouth_boxes(truth: np.ndarray, shape: tuple, margin: float = 0.35) -> np.ndarray:
