@@ -1,14 +1,10 @@
 """The cache is trustworthy: the same pipeline run in two differently named (and differently
 long) folders gives identical DVC hashes for every stage's outputs — nothing machine-specific
 (absolute paths, timings) ends up in a tracked output."""
-import shutil
-import subprocess
-
 import pytest
 import yaml
 
-from tests.conftest import ROOT
-from tests.test_dvc_pipeline import dvc
+from tests.test_dvc_pipeline import copy_project, dvc
 
 TINY = {
     "synthetic_speaker": {"n_videos": 3, "seconds_per_video": 4.0},
@@ -20,19 +16,7 @@ TINY = {
 
 
 def run_copy(folder):
-    folder.mkdir(parents=True)
-    for name in ("pipeline", "stages", "lipsynth"):
-        shutil.copytree(ROOT / name, folder / name, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("dvc.yaml", ".dvcignore"):
-        shutil.copy(ROOT / name, folder / name)
-    (folder / ".dvc").mkdir()
-    shutil.copy(ROOT / ".dvc" / "config", folder / ".dvc" / "config")
-    params = yaml.safe_load((ROOT / "params.yaml").read_text())
-    for section, values in TINY.items():
-        params[section].update(values)
-    (folder / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    subprocess.run(["git", "init", "-q"], cwd=folder, check=True)
-    dvc(folder, "repro")
+    dvc(copy_project(folder, TINY), "repro")
     return yaml.safe_load((folder / "dvc.lock").read_text())["stages"]
 
 

@@ -25,10 +25,10 @@ def dvc(proj, *args):
     return r.stdout + r.stderr
 
 
-@pytest.fixture(scope="module")
-def project(tmp_path_factory):
-    """A copy of the project's pipeline with a tiny synthetic corpus, reproduced once."""
-    proj = tmp_path_factory.mktemp("dvcproj")
+def copy_project(proj, overrides: dict):
+    """A git + DVC project in ``proj`` with this project's code, dvc.yaml and params.yaml (its
+    sections updated with ``overrides``); nothing is run yet."""
+    proj.mkdir(parents=True, exist_ok=True)
     for name in ("pipeline", "stages", "lipsynth"):
         shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
     for name in ("dvc.yaml", ".dvcignore"):
@@ -36,11 +36,19 @@ def project(tmp_path_factory):
     (proj / ".dvc").mkdir()
     shutil.copy(ROOT / ".dvc" / "config", proj / ".dvc" / "config")
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
-    params["delay_sweep"].update(delays=[0, 20], epochs=100)          # keep CI short
+    for section, values in overrides.items():
+        params[section].update(values)
     (proj / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     subprocess.run(["git", "init", "-q"], cwd=proj, check=True)
     subprocess.run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-q", "--allow-empty", "-m", "x"],
                    cwd=proj, check=True)
+    return proj
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    """A copy of the project's pipeline with a tiny synthetic corpus, reproduced once."""
+    proj = copy_project(tmp_path_factory.mktemp("dvcproj"), {"delay_sweep": {"delays": [0, 20], "epochs": 100}})
     out = dvc(proj, "repro")
     for stage in STAGES:
         assert f"Running stage '{stage}'" in out
