@@ -47,7 +47,7 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     p.synthesize.model = model or params.synthesize.model
     p.composite.diagnostic = diagnostic
     stores = synthesize.open_stores(p, pca=False)
-    entry = stores["frontalize"].attrs["videos"][0]
+    entry = dict(stores["frontalize"].attrs["videos"][0], path=str(target))     # messages name the user's file
     work = Path(tempfile.mkdtemp(prefix=".lipsynth-speak-", dir=Path(out).absolute().parent))
     try:
         ms = synthesize.run(p, str(work / "synthesize.zarr"), stores, entry)

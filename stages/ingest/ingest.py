@@ -237,9 +237,9 @@ def ingest_video(job: dict) -> dict:
     cv2.setNumThreads(1)
     e = job["entry"]
     try:
-        d = decode_video(e["path"], job["params"])
-    except BadInputError as exc:
-        return {"error": str(exc), "path": e["path"]}
+        d = decode_video(job["source"], job["params"])
+    except BadInputError as exc:                       # named as the user gave it
+        return {"error": str(BadInputError(job["given"], exc.problem)), "path": e["path"]}
     g = zarr.open_group(job["out"], mode="r+")
     n, a, m = (min(len(d[k]), e[c]) for k, c in (("crops", "cap_frames"), ("audio", "cap_samples"),
                                                    ("mfcc", "cap_mfcc")))
@@ -309,7 +309,10 @@ def run(params: Params, out: str) -> list[dict]:
         create_timed(g, "video_id", n_frames, (), "int32", sh, sh, fill_value=-1)
         create_timed(g, "audio", n_samples, (), "int16", sh_audio, sh_audio // 10)
         create_timed(g, "mfcc", n_mfcc, (28,), "float32", sh_mfcc, sh_mfcc // 10)
-        jobs = [dict(entry=e, params=p, out=str(tmp)) for e in entries]
+        # workers may run in another directory: they get absolute paths, the store records relative ones
+        given = {video_name(q): q for q in paths}
+        jobs = [dict(entry=e, source=str(Path(e["path"]).absolute()), given=given[e["name"]], params=p, out=str(tmp))
+                for e in entries]
         results = run_tasks(client, ingest_video, jobs, "ingest", "frame", [e["cap_frames"] for e in entries])
         for e, r in zip(entries, results):
             if "error" in r:
