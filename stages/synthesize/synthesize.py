@@ -1,7 +1,7 @@
 """synthesize — new audio → lower-face textures timed to a target video (paper 000 §3.2–3.3).
 
 1. Mouth shapes: the trained model (``synthesize.model``) turns the audio into 18 lip points
-   per output frame at the target's frame rate (``stages.train.predict``); a model trained on
+   per output frame at the target's frame rate (``pipeline.mouth_prediction``); a model trained on
    another PCA basis than the store's is refused.
 2. Re-timing (§3.3, ``retime``): speech flags of the audio, motion speed + blinks of the target,
    the dynamic programme maps output frames to target frames (a target shorter than half the
