@@ -5,6 +5,7 @@ video frame so that sample 0 is heard when frame 0 is shown.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -14,6 +15,8 @@ import av
 import numpy as np
 
 from .errors import BadInputError
+
+log = logging.getLogger("lipsynth.media")
 
 
 @dataclass
@@ -107,8 +110,16 @@ def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Itera
             raise BadInputError(path, f"video stream is corrupt ({exc})") from None
 
 
+MAX_DAMAGED_AUDIO = 0.5       # share of undecodable audio packets above which a track is refused ("mostly")
+
+
 def read_audio(path, sample_rate: int = 16000) -> tuple[np.ndarray, float]:
     """Decode the first audio stream, down-mixed to mono and resampled.
+
+    An isolated damaged packet (a real-world kind of damage: one bad MP2 frame among hundreds)
+    is concealed as FFmpeg's command line does — replaced by silence of the packet's duration,
+    so later samples keep their time — with a warning that counts them. A track with more than
+    ``MAX_DAMAGED_AUDIO`` of its packets undecodable is refused.
 
     Returns
     -------
@@ -121,19 +132,32 @@ def read_audio(path, sample_rate: int = 16000) -> tuple[np.ndarray, float]:
             raise BadInputError(path, "no audio track")
         a = c.streams.audio[0]
         res = av.AudioResampler(format="flt", layout="mono", rate=sample_rate)
-        chunks, start = [], None
+        chunks, start, packets, damaged = [], None, 0, 0
         try:
-            for frame in c.decode(a):
-                if start is None and frame.pts is not None:
-                    start = float(frame.pts * a.time_base)
-                for out in res.resample(frame):
-                    chunks.append(out.to_ndarray().reshape(-1))
+            for packet in c.demux(a):
+                packets += packet.size > 0                 # (the last, empty packet flushes the decoder)
+                try:
+                    frames = packet.decode()
+                except av.error.InvalidDataError:
+                    damaged += 1
+                    seconds = float(packet.duration * packet.time_base) if packet.duration else 0.0
+                    chunks.append(np.zeros(int(round(seconds * sample_rate)), np.float32))
+                    continue
+                for frame in frames:
+                    if start is None and frame.pts is not None:
+                        start = float(frame.pts * a.time_base)
+                    for out in res.resample(frame):
+                        chunks.append(out.to_ndarray().reshape(-1))
             for out in res.resample(None):
                 chunks.append(out.to_ndarray().reshape(-1))
         except av.error.FFmpegError as exc:
             raise BadInputError(path, f"audio stream is corrupt ({exc})") from None
         declared = float(a.duration * a.time_base) if a.duration else None
-    if not chunks:
+    if packets and damaged > MAX_DAMAGED_AUDIO * packets:
+        raise BadInputError(path, f"audio stream is mostly undecodable ({damaged} of {packets} packets damaged)")
+    if damaged:
+        log.warning("%s: concealed %d damaged audio packet(s) of %d with silence", path, damaged, packets)
+    if not chunks or not any(len(ch) for ch in chunks):
         raise BadInputError(path, "audio track holds no samples")
     samples = np.concatenate(chunks).astype(np.float32)
     if declared:  # AAC decoders emit the encoder's padding past the stream's declared end: drop it
