@@ -66,7 +66,7 @@ def preprocess_target(video: Path, params: Params, cache: Path) -> Params:
     run = copy.deepcopy(p)
     with client_for(p.cluster) as client:          # one cluster for the three stages
         run.cluster.address = client.scheduler.address
-        ingest.run(run, p.ingest.out)
+        ingest.run(run, p.ingest.out, require_audio=False)       # the new speech replaces its audio
         landmarks.run(run, p.ingest.out, p.landmarks.out)
         frontalize.run(run, p.ingest.out, p.landmarks.out, p.frontalize.out)
     return p

@@ -217,6 +217,26 @@ def test_speak_with_silent_audio_gives_a_closed_mouth(project, tmp_path):
 
 
 @pytest.mark.slow
+def test_speak_into_a_target_without_an_audio_track(project, tmp_path):
+    """The target only receives new speech: a silent video of the speaker is a valid target
+    (a training video without audio is still refused by ingest)."""
+    import av
+    target = tmp_path / "mute.mp4"
+    with av.open(str(project / "data" / "synthetic_speaker" / "speaker_01.mp4")) as c:
+        frames = [f.to_ndarray(format="rgb24") for _, f in zip(range(100), c.decode(video=0))]
+    from pipeline import media
+    media.write_video(target, frames, 25.0)                      # 4 s, no audio stream
+    with av.open(str(target)) as c:
+        assert not c.streams.audio
+    out = tmp_path / "voiced.mp4"
+    r = speak(project, tmp_path, "--audio", project / "data" / "synthetic_speaker" / "speaker_03.mp4",
+              "--target", target, "--out", out)
+    assert r.returncode == 0, r.stderr
+    with av.open(str(out)) as c:
+        assert c.streams.audio and sum(1 for _ in c.decode(video=0)) == 250     # the 10 s speech
+
+
+@pytest.mark.slow
 def test_speak_refuses_a_target_without_a_face_and_keeps_the_old_output(project, tmp_path):
     from tests.media_fixtures import make_clip
     rng = np.random.default_rng(0)

@@ -184,12 +184,12 @@ def _detect_on(frames: list, max_samples: int, min_face_px: float, upsample: int
     return boxes, small, len(pick)
 
 
-def probe_video(path: str, p: Ingest) -> dict:
+def probe_video(path: str, p: Ingest, require_audio: bool = True) -> dict:
     """Header-only checks and size estimates of one video (on the client, before any writing)."""
     info = media.probe(path)
     if not (p.min_fps <= info.fps <= p.max_fps):
         raise BadInputError(path, f"frame rate {info.fps:.3f} fps outside the supported {p.min_fps}–{p.max_fps} fps")
-    if not info.has_audio:
+    if require_audio and not info.has_audio:
         raise BadInputError(path, "no audio track (training videos need the speaker's audio)")
     if info.duration and info.duration < p.min_seconds:
         raise BadInputError(path, f"too short: {info.duration:.2f} s < ingest.min_seconds={p.min_seconds}")
@@ -199,7 +199,7 @@ def probe_video(path: str, p: Ingest) -> dict:
                 source_audio_channels=info.audio_channels)
 
 
-def decode_video(path: str, p: Ingest) -> dict:
+def decode_video(path: str, p: Ingest, require_audio: bool = True) -> dict:
     """Everything ingest stores for one video, as arrays (pure of the store).
 
     Returns
@@ -220,7 +220,10 @@ def decode_video(path: str, p: Ingest) -> dict:
         raise BadInputError(path, "no decodable video frames")
     if n / info.fps < p.min_seconds:
         raise BadInputError(path, f"too short: {n / info.fps:.2f} s < ingest.min_seconds={p.min_seconds}")
-    samples, audio_start = media.read_audio(path, audio_features.SAMPLE_RATE)
+    if require_audio or info.has_audio:
+        samples, audio_start = media.read_audio(path, audio_features.SAMPLE_RATE)
+    else:                   # a target for new speech needs no audio of its own: silence
+        samples, audio_start = np.zeros(0, np.float32), times[0]
     audio = media.align_audio(samples, audio_start, times[0], n / info.fps, audio_features.SAMPLE_RATE)
     audio = audio_features.rms_normalize(audio, p.rms_target_dbfs)
     return dict(crops=np.stack(crops), frame_time=np.asarray(times) - times[0], audio=audio,
@@ -237,7 +240,7 @@ def ingest_video(job: dict) -> dict:
     cv2.setNumThreads(1)
     e = job["entry"]
     try:
-        d = decode_video(job["source"], job["params"])
+        d = decode_video(job["source"], job["params"], job["require_audio"])
     except BadInputError as exc:                       # named as the user gave it
         return {"error": str(BadInputError(job["given"], exc.problem)), "path": e["path"]}
     g = zarr.open_group(job["out"], mode="r+")
@@ -280,7 +283,9 @@ def layout(entries: list[dict], shard_frames: int, shard_samples: int, shard_mfc
     return f, s, m
 
 
-def run(params: Params, out: str) -> list[dict]:
+def run(params: Params, out: str, require_audio: bool = True) -> list[dict]:
+    """Ingest ``data.videos`` into ``out``. Training videos need their audio (``require_audio``);
+    a target video that only receives new speech (``lipsynth speak``) does not."""
     data, p = params.data, params.ingest
     if p.crop_size % 4:
         raise ParameterError(f"ingest.crop_size={p.crop_size}: must be a multiple of 4 (I420 storage)")
@@ -290,7 +295,7 @@ def run(params: Params, out: str) -> list[dict]:
     entries = []
     for q in paths:
         try:
-            entries.append(probe_video(q, p))
+            entries.append(probe_video(q, p, require_audio))
         except BadInputError as exc:
             if data.on_bad_input != "skip":
                 raise LipsynthError(f"{exc} (set data.on_bad_input: skip to leave such videos out)") from None
@@ -311,7 +316,8 @@ def run(params: Params, out: str) -> list[dict]:
         create_timed(g, "mfcc", n_mfcc, (28,), "float32", sh_mfcc, sh_mfcc // 10)
         # workers may run in another directory: they get absolute paths, the store records relative ones
         given = {video_name(q): q for q in paths}
-        jobs = [dict(entry=e, source=str(Path(e["path"]).absolute()), given=given[e["name"]], params=p, out=str(tmp))
+        jobs = [dict(entry=e, source=str(Path(e["path"]).absolute()), given=given[e["name"]], params=p,
+                     require_audio=require_audio, out=str(tmp))
                 for e in entries]
         results = run_tasks(client, ingest_video, jobs, "ingest", "frame", [e["cap_frames"] for e in entries])
         for e, r in zip(entries, results):
