@@ -6,6 +6,10 @@ mouth landmark error next to a static mouth, inner-lip opening correlation, mout
 absolute difference, sharpness ratio, flicker ratio. Also prints ms/frame per phase.
 
     python bench/synthesis_quality.py --params runs/grid_s1/params.yaml --clips 20 --exclude-target
+    python bench/synthesis_quality.py --params runs/grid_s1/params.yaml --clips 20 --path speak
+
+``--path speak`` runs ``lipsynth speak`` on each validation clip's file (held out of training,
+preprocessed outside the corpus store) — the product's path; the default is the DVC path.
 
 ``--params`` is the corpus's params file (its stores and model); the synthesize/composite
 settings come from the project's params.yaml. Writes ``--out``/quality.json, per-clip MP4s and
@@ -32,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lipsynth import lipsync_quality as quality  # noqa: E402
 from pipeline.params import check, load_params  # noqa: E402
 from pipeline.runner import setup_logging  # noqa: E402
+from lipsynth.speak import speak  # noqa: E402
 from stages.composite import composite  # noqa: E402
 from stages.synthesize import synthesize  # noqa: E402
 
@@ -58,6 +63,11 @@ def main() -> None:
                     help="candidates only from training videos (the true frames cannot be copied)")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a synthesize/composite param, e.g. --set synthesize.n=20 (repeatable)")
+    ap.add_argument("--path", choices=("store", "speak"), default="store",
+                    help="store: the DVC path (target read from the corpus store); speak: what users run — "
+                         "`lipsynth speak` on the clip's file, preprocessed outside the store (the clip is held out "
+                         "of training: a validation clip)")
+    ap.add_argument("--names", nargs="*", default=None, help="evaluate these validation clips (names) instead")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "quality")
     a = ap.parse_args()
     setup_logging()
@@ -68,7 +78,11 @@ def main() -> None:
     stores = synthesize.open_stores(corpus)
     videos = [v for v in stores["frontalize"].attrs["videos"]
               if v["split"] == "val" and v["n_frames"] and not v.get("excluded")]
-    videos = sorted(videos, key=lambda v: v["name"])[:a.clips]
+    if a.names:
+        videos = [v for v in videos if v["name"] in a.names]
+    else:       # spread over the validation clips
+        videos = sorted(videos, key=lambda v: v["name"])
+        videos = [videos[k] for k in np.unique(np.linspace(0, len(videos) - 1, min(a.clips, len(videos))).round().astype(int))]
     results, timings, walls = [], [], []
     for v in videos:
         p = copy.deepcopy(corpus)
@@ -83,26 +97,38 @@ def main() -> None:
         store = a.out / f".{v['name']}.synthesize.zarr"
         mp4 = a.out / f"{v['name']}.mp4"
         t0 = time.perf_counter()
-        ms = synthesize.run(p, str(store), stores, v)
-        ms.update(composite.run(p, str(store), str(mp4), corpus.frontalize.out, v["path"], v["path"]))
+        if a.path == "speak":
+            ms = speak(v["path"], v["path"], str(mp4), p, model=corpus.train.out, retime=False, cache=a.out / "cache")
+            report = ms.pop("report")
+        else:
+            ms = synthesize.run(p, str(store), stores, v)
+            ms.update(composite.run(p, str(store), str(mp4), corpus.frontalize.out, v["path"], v["path"]))
+            report = dict(self_check=ms.pop("self_check", None))
         walls.append((time.perf_counter() - t0) / v["n_frames"])
         shutil.rmtree(store, ignore_errors=True)
         out = quality.video_landmarks(mp4, corpus.landmarks)
         ref = quality.video_landmarks(v["path"], corpus.landmarks)
         q = quality.compare(*out, *ref)
         q["clip"] = v["name"]
+        q["fallen_back"] = (report.get("self_check") or {}).get("fallen_back")
+        q["identity_distance"] = report.get("identity_distance")
         results.append(q)
         timings.append(ms)
         print(f"{v['name']}: mouth {q['mouth_error_px']:.2f} px ({q['mouth_error_iod_pct']:.2f}% IOD), static "
               f"{q['static_mouth_error_px']:.2f} px, opening corr {q['opening_corr']:.3f}, MAD {q['mouth_mad']:.1f}, "
-              f"sharpness {q['sharpness_ratio']:.2f}, flicker {q['flicker_ratio']:.2f}", flush=True)
+              f"sharpness {q['sharpness_ratio']:.2f}, flicker {q['flicker_ratio']:.2f}, best lag {q['opening_best_lag']}, "
+              f"fallen back {q['fallen_back']}", flush=True)
         if len(results) == 1:
             cv2.imwrite(str(a.out / f"{v['name']}_mouth_strip.png"), strip(Path(v["path"]), mp4, q["mouth_box"])[..., ::-1])
     keys = ["mouth_error_px", "mouth_error_iod_pct", "static_mouth_error_px", "static_mouth_error_iod_pct",
             "opening_corr", "mouth_mad", "sharpness_ratio", "flicker_ratio"]
     median = {k: float(np.nanmedian([r[k] for r in results])) for k in keys}
+    median["error_ratio"] = median["mouth_error_px"] / median["static_mouth_error_px"]
+    median["within_1_frame"] = float(np.mean([abs(r["opening_best_lag"]) <= 1 for r in results]))
+    keys += ["error_ratio", "within_1_frame"]
     phases = {k: float(np.median([t.get(k, 0.0) for t in timings])) for k in timings[0]}
-    summary = dict(clips=len(results), exclude_target=a.exclude_target, overrides=a.set, median=median, ms_per_frame_median=phases,
+    summary = dict(clips=len(results), path=a.path, exclude_target=a.exclude_target,
+                   frames_fallen_back=int(sum(r["fallen_back"] or 0 for r in results)), overrides=a.set, median=median, ms_per_frame_median=phases,
                    per_clip=results)
     (a.out / "quality.json").write_text(json.dumps(summary, indent=2) + "\n")
     print("\nmedian over", len(results), "clips:")

@@ -79,6 +79,20 @@ def flicker(frames: np.ndarray, box) -> float:
     return float(np.abs(np.diff(crop, axis=0)).mean())
 
 
+def best_lag(a: np.ndarray, b: np.ndarray, max_lag: int = 5) -> int:
+    """Lag (frames) in ±``max_lag`` maximising the correlation of a[t + lag] with b[t] (NaN = missing)."""
+    best, score = 0, -np.inf
+    for lag in range(-max_lag, max_lag + 1):
+        x = a[max(lag, 0):len(a) + min(lag, 0)]
+        y = b[max(-lag, 0):len(b) + min(-lag, 0)]
+        ok = np.isfinite(x) & np.isfinite(y)
+        if ok.sum() > 5 and x[ok].std() > 0 and y[ok].std() > 0:
+            c = np.corrcoef(x[ok], y[ok])[0, 1]
+            if c > score:
+                best, score = lag, c
+    return best
+
+
 def compare(out_gray: np.ndarray, out_lm: np.ndarray, out_ok: np.ndarray,
             ref_gray: np.ndarray, ref_lm: np.ndarray, ref_ok: np.ndarray) -> dict:
     """All measures of an output video against its original (same length, same timing)."""
@@ -91,6 +105,8 @@ def compare(out_gray: np.ndarray, out_lm: np.ndarray, out_ok: np.ndarray,
     err, static = mouth_error(o, r), mouth_error(static_mouth(r), r)
     box = one_box(mouth_boxes(ref_lm[:n][ref_ok[:n]], ref_gray.shape[1:]))
     op_o, op_r = inner_opening(o), inner_opening(r)
+    seq_o, seq_r = np.full(n, np.nan), np.full(n, np.nan)
+    seq_o[ok], seq_r[ok] = op_o, op_r
     sharp_o, sharp_r = sharpness(out_gray[:n], box), sharpness(ref_gray[:n], box)
     flick_o, flick_r = flicker(out_gray[:n], box), flicker(ref_gray[:n], box)
     return {
@@ -98,6 +114,7 @@ def compare(out_gray: np.ndarray, out_lm: np.ndarray, out_ok: np.ndarray,
         "mouth_error_px": float(err.mean()), "mouth_error_iod_pct": float(100 * err.mean() / iod),
         "static_mouth_error_px": float(static.mean()), "static_mouth_error_iod_pct": float(100 * static.mean() / iod),
         "opening_corr": float(np.corrcoef(op_o, op_r)[0, 1]) if op_r.std() > 0 and op_o.std() > 0 else float("nan"),
+        "opening_best_lag": best_lag(seq_o, seq_r),
         "mouth_mad": mean_abs_difference(out_gray[:n], ref_gray[:n], box),
         "sharpness_ratio": sharp_o / sharp_r, "flicker_ratio": flick_o / flick_r, "mouth_box": list(box),
     }

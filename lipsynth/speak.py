@@ -6,8 +6,20 @@ file's content and those settings, so a second run with the same target starts a
 synthesize (mouth shapes from the model, re-timing, mouth texture) and composite (jaw
 correction, layers, render-back, pyramid blend, H.264 + AAC).
 
-The candidate pool is the target video's own frames: the longer the target, the more mouth
-shapes it covers (the paper's targets are minutes long).
+Who is the target? The target's face descriptor (dlib's face-recognition ResNet) is compared
+with the speaker the model folder records (``stages/train/speaker``):
+
+* the model's speaker: the target is frontalized with the corpus 3D face model (pose alone per
+  frame), the predicted mouth shapes are used as they are (one PCA frame), and candidates come
+  from the target's frames and the model folder's candidate bank (training frames), as in the
+  DVC pipeline;
+* another person: the target's own 3D model, candidates from the target alone (never another
+  face's mouth), predicted shapes re-targeted onto its mean mouth; a warning when the target
+  covers few distinct mouth shapes.
+
+A target whose 3D fit failed is refused before synthesis, naming the fit; every output frame is
+re-read by dlib (``composite.self_check``) and frames whose mouth is wrong fall back to the
+target frame with a cross-fade.
 
 Examples
 --------
@@ -22,9 +34,16 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from lipsynth.target import default_cache, preprocess_target
+import numpy as np
+
+from lipsynth.target import default_cache, landmarked_target, preprocess_target
+from pipeline import identity
 from pipeline.errors import BadInputError, ParameterError
+from pipeline.face import IOD_MM, LIP_POINTS, interocular
+from pipeline.geometry import rotation, rotation_angle_deg
+from pipeline.model_folder import load_model, load_speaker
 from pipeline.mouth_prediction import load_audio
+from pipeline.store import open_group
 from pipeline.params import Params, load_params
 from pipeline.runner import run_main, setup_logging
 from stages.composite import composite
@@ -33,27 +52,135 @@ from stages.synthesize import synthesize
 log = logging.getLogger("lipsynth.speak")
 
 
+def target_identity(p: Params, n_frames: int) -> np.ndarray | None:
+    """Median face descriptor (128,) of the preprocessed target (its ingest + landmarks stores)."""
+    src, lmg = open_group(p.ingest.out), open_group(p.landmarks.out)
+    v = lmg.attrs["videos"][0]
+    d = identity.video_descriptor(src["crops"], np.asarray(lmg["landmarks"][...]), np.asarray(lmg["valid"][...]),
+                                  v["crop"], n_frames)
+    return None if d is None else identity.identity(d)
+
+
+def distinct_shapes(shapes: np.ndarray, radius: float) -> int:
+    """Size of a greedy ``radius``-net of mouth shapes (M, 18, 2): how many clearly different
+    shapes (mean point distance > radius, texture px) a candidate pool offers."""
+    kept: list[np.ndarray] = []
+    for s in shapes[np.all(np.isfinite(shapes), axis=(1, 2))]:
+        if not kept or np.linalg.norm(np.asarray(kept) - s, axis=2).mean(1).min() > radius:
+            kept.append(s)
+    return len(kept)
+
+
+def fit_report(p: Params, target: str) -> dict:
+    """How well the target's 3D fit went, before any synthesis: raises when it failed.
+
+    Returns dict(frames, face, posed, reprojection_iod (median RMS reprojection / inter-ocular
+    distance over the frames with a face), max_jump_deg (largest head rotation between
+    consecutive posed frames)).
+    """
+    fr, lmg = open_group(p.frontalize.out), open_group(p.landmarks.out)
+    v = fr.attrs["videos"][0]
+    sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])     # the arrays are padded to whole shards
+    face_ok = np.asarray(lmg["valid"][sl])
+    posed = np.asarray(fr["pose_valid"][sl])
+    err = np.asarray(fr["reprojection_error"][sl], np.float64)
+    iod = interocular(np.asarray(lmg["landmarks"][sl], np.float64))
+    rel = err[face_ok] / iod[face_ok]
+    rel = rel[np.isfinite(rel)]
+    R = [rotation(r) for r in np.asarray(fr["pose"][sl], np.float64)[:, :3]]
+    jumps = [rotation_angle_deg(R[i], R[i + 1]) for i in range(len(R) - 1) if posed[i] and posed[i + 1]]
+    rep = dict(frames=len(posed), face=int(face_ok.sum()), posed=int(posed.sum()),
+               reprojection_iod=float(np.median(rel)) if len(rel) else float("nan"),
+               max_jump_deg=float(max(jumps, default=0.0)), method=fr.attrs["model"].get("method"))
+    log.info("target 3D fit (%s model): face in %d of %d frames, pose accepted in %d, median reprojection %.3f × IOD, "
+             "largest pose jump %.1f°", rep["method"], rep["face"], rep["frames"], rep["posed"],
+             rep["reprojection_iod"], rep["max_jump_deg"])
+    s = p.speak
+    if rep["face"] and (rep["posed"] < p.synthesize.min_target_fraction * rep["frames"]
+                        or not rep["reprojection_iod"] <= s.max_reprojection_median):
+        raise BadInputError(target, f"the 3D face model does not fit this video: median reprojection error "
+                                    f"{rep['reprojection_iod']:.2f} × inter-ocular distance (limit "
+                                    f"speak.max_reprojection_median={s.max_reprojection_median}), head pose accepted "
+                                    f"in {rep['posed']} of {rep['frames']} frames ({rep['face']} with a face)")
+    if rep["max_jump_deg"] > s.max_pose_jump_deg:
+        log.warning("%s: the head pose jumps by %.1f° between two frames (speak.max_pose_jump_deg=%.0f): expect "
+                    "a visible jump in the output there", target, rep["max_jump_deg"], s.max_pose_jump_deg)
+    return rep
+
+
+def choose_speaker(p: Params, model: str, target: str) -> tuple[dict | None, dict]:
+    """Is the target the model's speaker? Returns (the model's speaker when it is and its bank fits, report)."""
+    speaker = load_speaker(model)
+    if speaker is None:
+        log.warning("%s has no speaker record (trained before identities were stored): treating the target as "
+                    "another person (its own 3D model, mouths from the target only)", model)
+        return None, dict(identity_distance=None, same_speaker=False)
+    who = target_identity(p, p.speak.identity_frames)
+    dist = identity.distance(who, speaker["identity"]) if who is not None else float("inf")
+    same = dist < p.speak.same_speaker_distance
+    log.info("identity: target is %.3f from the model's speaker (same person below speak.same_speaker_distance=%.2f, "
+             "the corpus's own frames reach %.3f): %s", dist, p.speak.same_speaker_distance,
+             float(speaker["identity_spread"].max()), "same speaker" if same else "another person")
+    return (speaker if same else None), dict(identity_distance=round(dist, 4), same_speaker=bool(same))
+
+
 def speak(audio: str, target: str, out: str, params: Params, model: str | None = None, retime: bool = True,
           cache: Path | None = None, diagnostic: bool = False) -> dict:
-    """Write ``out`` (MP4): the speaker of ``target`` saying ``audio``. Returns ms/frame per phase."""
+    """Write ``out`` (MP4): the speaker of ``target`` saying ``audio``.
+
+    Returns ms/frame per phase and a ``report`` (identity distance, path taken, 3D fit, self-check).
+    """
     for path, what in ((audio, "audio"), (target, "target video")):
         if not Path(path).is_file():
             raise BadInputError(path, f"{what} file not found")
     if not str(out).lower().endswith(".mp4"):
         raise ParameterError(f"--out {out}: expected an .mp4 file name")
+    if not Path(out).absolute().parent.is_dir():
+        raise ParameterError(f"--out {out}: the folder {Path(out).absolute().parent} does not exist")
+    model = model or params.synthesize.model
     load_audio(audio)                          # a bad audio file fails now, not after preprocessing
-    p = preprocess_target(Path(target), params, cache or default_cache())
-    p.synthesize.audio, p.synthesize.retime = str(audio), retime
-    p.synthesize.model = model or params.synthesize.model
+    load_model(model)                          # so does a bad model folder
+    cache = cache or default_cache()
+    p = landmarked_target(Path(target), params, cache)
+    speaker, report = choose_speaker(p, model, target)
+    p = preprocess_target(Path(target), params, cache, shape3d=None if speaker is None else speaker["shape3d"])
+    report["fit"] = fit_report(p, target)
+    p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, model
     p.composite.diagnostic = diagnostic
     stores = synthesize.open_stores(p, pca=False)
+    window = stores["frontalize"].attrs["texture_window"]
+    if speaker is not None and speaker["bank"] is not None:
+        bank = open_group(speaker["bank"])
+        if bank.attrs["texture_window"] == window:
+            stores["bank"] = bank
+        else:
+            log.warning("the model's candidate bank has another texture window (%s) than these params (%s): "
+                        "mouths from the target only", bank.attrs["texture_window"], window)
+    # the model's PCA frame is the target's when both share the corpus 3D model and the bank
+    p.synthesize.retarget = "never" if "bank" in stores else "always"
+    report["path"] = "same speaker: corpus 3D model + candidate bank" if "bank" in stores else \
+        "another person: own 3D model, target's mouths, re-targeted shapes"
     entry = dict(stores["frontalize"].attrs["videos"][0], path=str(target))     # messages name the user's file
+    if "bank" not in stores:
+        fr, lmg = stores["frontalize"], stores["landmarks"]
+        own = synthesize.usable(fr, lmg, entry)
+        shapes = np.asarray(fr["frontal_landmarks"][...], np.float64)[own][:, LIP_POINTS]
+        iod_px = IOD_MM / window["mm_per_px"]
+        n_shapes = distinct_shapes(shapes, 0.02 * iod_px)
+        report["distinct_mouth_shapes"] = n_shapes
+        if n_shapes < p.speak.min_mouth_shapes:
+            log.warning("%s: the target covers only %d distinct mouth shapes (%d usable frames; "
+                        "speak.min_mouth_shapes=%d): mouths will repeat and miss shapes — a longer target video "
+                        "of this person helps", target, n_shapes, len(own), p.speak.min_mouth_shapes)
+    log.info("speak: %s", report["path"])
     work = Path(tempfile.mkdtemp(prefix=".lipsynth-speak-", dir=Path(out).absolute().parent))
     try:
         ms = synthesize.run(p, str(work / "synthesize.zarr"), stores, entry)
         ms.update(composite.run(p, str(work / "synthesize.zarr"), out, p.frontalize.out, str(target), str(audio)))
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    report["self_check"] = ms.pop("self_check", None)
+    ms["report"] = report
     return ms
 
 

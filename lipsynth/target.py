@@ -15,13 +15,15 @@ import logging
 import os
 from pathlib import Path
 
+import numpy as np
+
 from pipeline.parallel import client_for
 from pipeline.params import Params, as_dict
 
 log = logging.getLogger("lipsynth.target")
 
 PREPROCESS = ("ingest", "landmarks", "frontalize")
-CACHE_FORMAT = 2          # bump when the preprocessing code changes what it stores
+CACHE_FORMAT = 3          # bump when the preprocessing code changes what it stores
 
 
 def default_cache() -> Path:
@@ -44,14 +46,35 @@ def cache_key(video: Path, params: Params) -> str:
     return hashlib.sha1(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def preprocess_target(video: Path, params: Params, cache: Path) -> Params:
+def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndarray | None = None) -> Params:
     """Params whose ingest/landmarks/frontalize outputs hold ``video`` alone (computed once, then cached).
 
     Returns a copy of ``params`` with ``data.videos`` = [video] and each preprocessing stage's
     ``out`` inside ``cache``; the stores are complete when this returns (each stage writes
     atomically, so an interrupted run leaves nothing that looks finished).
+
+    ``shape3d`` (68, 3) mm: frontalize with this 3D face model (a model folder's corpus model,
+    for a target of the same speaker) instead of one fitted to the video alone; each model gets
+    its own frontalize store in the cache folder.
     """
+    p = landmarked_target(video, params, cache)
+    if shape3d is not None:
+        tag = hashlib.sha1(np.ascontiguousarray(shape3d, np.float32).tobytes()).hexdigest()[:12]
+        p.frontalize.out = str(Path(p.frontalize.out).with_name(f"frontalize-{tag}.zarr"))
+    if Path(p.frontalize.out).is_dir():
+        return p
     from stages.frontalize import frontalize
+    log.info("target %s: frontalizing with %s", video, "the model's 3D face" if shape3d is not None else
+             "its own 3D face model")
+    with client_for(p.cluster) as client:
+        run = copy.deepcopy(p)
+        run.cluster.address = client.scheduler.address
+        frontalize.run(run, p.ingest.out, p.landmarks.out, p.frontalize.out, shape3d=shape3d)
+    return p
+
+
+def landmarked_target(video: Path, params: Params, cache: Path) -> Params:
+    """Like ``preprocess_target`` but only ingest and landmarks are guaranteed to exist."""
     from stages.ingest import ingest
     from stages.landmarks import landmarks
     p = copy.deepcopy(params)
@@ -59,14 +82,13 @@ def preprocess_target(video: Path, params: Params, cache: Path) -> Params:
     p.data.videos, p.data.val_fraction, p.data.on_bad_input = [str(video.absolute())], 0.0, "error"
     for stage in PREPROCESS:
         getattr(p, stage).out = str(folder / f"{stage}.zarr")
-    if (folder / "frontalize.zarr").is_dir():
+    if (folder / "landmarks.zarr").is_dir():
         log.info("target %s: preprocessed stores found in %s", video, folder)
         return p
-    log.info("target %s: preprocessing into %s (ingest → landmarks → frontalize)", video, folder)
+    log.info("target %s: preprocessing into %s (ingest → landmarks)", video, folder)
     run = copy.deepcopy(p)
-    with client_for(p.cluster) as client:          # one cluster for the three stages
+    with client_for(p.cluster) as client:          # one cluster for both stages
         run.cluster.address = client.scheduler.address
         ingest.run(run, p.ingest.out, require_audio=False)       # the new speech replaces its audio
         landmarks.run(run, p.ingest.out, p.landmarks.out)
-        frontalize.run(run, p.ingest.out, p.landmarks.out, p.frontalize.out)
     return p

@@ -62,3 +62,18 @@ def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
     except (RuntimeError, KeyError) as exc:
         raise ModelError(f"{folder}: weights.pt does not fit config.json ({str(exc).splitlines()[0]})") from None
     return model.to(device), config, arrays
+
+
+def load_speaker(folder) -> dict | None:
+    """The speaker a model folder was trained on, or None for a folder without one.
+
+    Returns dict(shape3d (68, 3) mm, identity (128,), identity_spread (F,), bank: the path of the
+    candidate bank zarr (None when the folder has no bank)). See ``stages/train/speaker``.
+    """
+    folder = Path(folder)
+    if not (folder / "speaker.npz").is_file():
+        return None
+    with np.load(folder / "speaker.npz") as z:
+        out = {k: z[k] for k in ("shape3d", "identity", "identity_spread")}
+    out["bank"] = folder / "bank.zarr" if (folder / "bank.zarr").is_dir() else None
+    return out

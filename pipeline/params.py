@@ -132,6 +132,8 @@ class Train:
     feature_norm: str = "corpus"
     seed: int = 0
     device: str = "auto"
+    bank_frames: int = 3000
+    identity_frames: int = 60
 
     CHOICES = {"model": ("lstm",), "feature_norm": ("corpus", "utterance")}
 
@@ -164,12 +166,12 @@ class Synthesize:
     teeth_upper: int | None = None
     teeth_lower: int | None = None
     teeth_sigmas: list = field(default_factory=lambda: [1.0, 2.0, 4.0])
-    teeth_strength: float = 0.6
+    teeth_strength: float = 0.3
     teeth_s_max: float = 0.45
     teeth_v_min: float = 0.45
     teeth_feather_px: float = 1.0
     unsharp_sigma: float = 1.0
-    unsharp_amount: float = 0.5
+    unsharp_amount: float = 0.25
     min_target_fraction: float = 0.5
     threads: int = 2
     device: str = "auto"
@@ -187,12 +189,25 @@ class Composite:
     neck_depth: float = 0.3
     colour_match: bool = True
     pyramid_levels: int = 5
-    sharpen: float = 1.0
+    sharpen: float = 0.5
     sharpen_sigma: float = 1.0
     threads: int = 2
     crf: int = 18
     preset: str = "veryfast"
     audio_rate: int = 48000
+    self_check: bool = True
+    check_max_error: float = 0.12
+    check_max_sharpness: float = 4.0
+    check_fade_frames: int = 3
+
+
+@dataclass
+class Speak:
+    same_speaker_distance: float = 0.5
+    identity_frames: int = 20
+    min_mouth_shapes: int = 30
+    max_reprojection_median: float = 0.08
+    max_pose_jump_deg: float = 10.0
 
 
 @dataclass
@@ -210,6 +225,7 @@ class Params:
     delay_sweep: DelaySweep = field(default_factory=DelaySweep)
     synthesize: Synthesize = field(default_factory=Synthesize)
     composite: Composite = field(default_factory=Composite)
+    speak: Speak = field(default_factory=Speak)
 
 
 SECTIONS = {f.name: f.default_factory for f in dataclasses.fields(Params)}

@@ -45,3 +45,24 @@ def test_too_short_audio_is_refused(tmp_path):
                                 "--cache", tmp_path / "c"))
     assert str(short) in line and "too short" in line
     assert np.all([not p.name.startswith(".") for p in tmp_path.iterdir()])
+
+
+def test_missing_output_folder_is_one_line(tmp_path):
+    from tests.media_fixtures import make_clip
+    clip = tmp_path / "clip.mp4"
+    make_clip(clip, n_frames=30)
+    line = one_error_line(speak("--audio", clip, "--target", clip, "--out", tmp_path / "nowhere" / "o.mp4"))
+    assert "nowhere" in line and "does not exist" in line
+
+
+def test_distinct_shapes_counts_clearly_different_mouths():
+    from lipsynth.speak import distinct_shapes
+    rng = np.random.default_rng(0)
+    base = rng.normal(0, 5, (18, 2))
+    same = base + rng.normal(0, 0.05, (40, 18, 2))                 # one shape, jittered
+    assert distinct_shapes(same, 1.0) == 1
+    opened = np.stack([base + [0, k * 3.0] for k in range(6)])     # six openings 3 px apart
+    assert distinct_shapes(np.concatenate([same, opened, opened]), 1.0) == 6
+    nan = opened.copy()
+    nan[2] = np.nan                                                # frames without landmarks are ignored
+    assert distinct_shapes(nan, 1.0) == 5

@@ -34,6 +34,7 @@ from pipeline.runner import stage_main, write_timing
 from pipeline.store import i420_to_rgb, open_group
 from stages.composite.layers import (colour_match, jaw_band, jaw_correction, layer_masks, pyramid_blend, skin_region,
                                      synth_alpha)
+from stages.composite import self_check
 from stages.composite.render import inverse_map, render, texture_footprint
 
 log = logging.getLogger("lipsynth.composite")
@@ -75,6 +76,13 @@ class Target:
     def texture(self, j: int) -> np.ndarray:
         """Frontal texture (T, T, 3) uint8 RGB of target frame j."""
         return i420_to_rgb(self._block(j)[0])
+
+    def expected_landmarks(self, j: int, synthesized: np.ndarray) -> np.ndarray:
+        """Where the landmarks (68, 2) of output frame showing target frame j should lie, in frame px:
+        the target's own, with the mouth (48–67) of ``synthesized`` (68, 2) texture px."""
+        lm = self.flm[j].copy()
+        lm[48:68] = synthesized[48:68]
+        return self_check.to_frame(lm, self.surface, self.window, self.pose[j, :3], self.pose[j, 3:], self.K)
 
     def clothing(self, j: int) -> np.ndarray:
         """Clothing mask (T, T) float32 {0, 1} of target frame j."""
@@ -162,6 +170,7 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
     tgt = Target(open_group(frontalize_path), synth.attrs["target"], video_path)
     mapping = np.asarray(synth["target_frame"][...])
     lips = np.asarray(synth["lip_points"][...])
+    cand = np.asarray(synth["candidate_landmarks"][...], np.float64)
     partner = repeat_partners(mapping)        # repeated frames become half-way flow frames (§3.3)
     sr = int(p.audio_rate)
     audio, _ = media.read_audio(audio_path, sr)
@@ -172,34 +181,61 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
     diag = out.with_name(out.stem + ".diagnostic.mp4") if p.diagnostic else None
     diag_tmp = diag.with_name(f".{diag.name}.tmp-{os.getpid()}.mp4") if diag else None
     timing: dict = {}
+    checks: list[dict] = []
     t_start = time.perf_counter()
 
-    def work(frame, following, texture, j, inpainted):
+    def work(i, frame, following, texture, j, inpainted):
         t: dict = {}
         if following is not None:
             t0 = time.perf_counter()
             frame = halfway_frame(frame, following)
             t["retime_flow"] = time.perf_counter() - t0
-        return frame, composite_frame(frame, texture, j, tgt, p, t, inpainted), t
+        result = composite_frame(frame, texture, j, tgt, p, t, inpainted)
+        check = None
+        if p.self_check and tgt.pose_ok[j]:
+            t0 = time.perf_counter()
+            check = self_check.check_frame(result, frame, tgt.expected_landmarks(j, cand[i]))
+            t["self_check"] = time.perf_counter() - t0
+        return frame, result, t, check
 
     try:
         with media.VideoWriter(tmp, tgt.video["fps"], p.crf, p.preset, audio, sr) as w, \
                 (media.VideoWriter(diag_tmp, tgt.video["fps"], p.crf, p.preset, audio, sr)
                  if diag else _Null()) as dw, ThreadPoolExecutor(p.threads) as pool:
-            pending: deque = deque()
+            pending: deque = deque()            # submitted, not finished
+            ready: deque = deque()              # finished, waiting for the self-check of the frames after them
+            ok = np.ones(len(mapping), bool)
+            fade = max(int(p.check_fade_frames), 0) if p.self_check else 0
 
-            def flush(keep: int) -> None:
-                while len(pending) > keep:
-                    i, texture, fut = pending.popleft()
-                    frame, result, t = fut.result()
-                    for k, v in t.items():
-                        timing[k] = timing.get(k, 0.0) + v
+            def emit(keep: int) -> None:
+                while len(ready) > keep:
+                    i, frame, result, texture = ready.popleft()
+                    lo = max(i - fade, 0)
+                    wgt = self_check.fallback_weights(ok[lo:i + fade + 1], fade)[i - lo]
+                    if wgt < 1:            # cross-fade to the target frame around a failed frame
+                        result = np.clip(wgt * result.astype(np.float32) + (1 - wgt) * frame + 0.5, 0, 255
+                                         ).astype(np.uint8)
                     t0 = time.perf_counter()
                     w.write(result)
                     if diag:
                         dw.write(diagnostic(frame, result, texture, lips[i]))
                     timing["encode"] = timing.get("encode", 0.0) + time.perf_counter() - t0
                     bar.update()
+
+            def flush(keep: int) -> None:
+                while len(pending) > keep:
+                    i, texture, fut = pending.popleft()
+                    frame, result, t, check = fut.result()
+                    for k, v in t.items():
+                        timing[k] = timing.get(k, 0.0) + v
+                    if check is not None:
+                        checks.append(check)
+                        ok[i] = self_check.passes(check, p.check_max_error, p.check_max_sharpness)
+                        if not ok[i]:
+                            log.debug("self-check: output frame %d fails (mouth error %.3f × IOD, sharpness × %.1f)",
+                                      i, check["error"], check["sharpness"])
+                    ready.append((i, frame, result, texture))
+                    emit(fade)
 
             with tqdm(total=len(mapping), desc="composite", unit="frame", dynamic_ncols=True) as bar:
                 for i in range(len(mapping)):
@@ -212,9 +248,11 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
                     following = tgt.reader.get(int(partner[i])) if partner[i] >= 0 else None
                     timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
                     texture = textures[i % 256]
-                    pending.append((i, texture, pool.submit(work, frame, following, texture, j, inpainted[i % 256])))
+                    pending.append((i, texture, pool.submit(work, i, frame, following, texture, j,
+                                                            inpainted[i % 256])))
                     flush(2 * p.threads)
                 flush(0)
+                emit(0)
         os.replace(tmp, out)
         if diag:
             os.replace(diag_tmp, diag)
@@ -225,7 +263,17 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
     total = time.perf_counter() - t_start
     log.info("wrote %s: %d frames at %.3f fps in %.1f s (%.1f frames/s)", out, len(mapping), tgt.video["fps"],
              total, len(mapping) / total)
-    return {k: v / len(mapping) * 1000 for k, v in timing.items()}       # thread time per frame
+    ms = {k: v / len(mapping) * 1000 for k, v in timing.items()}       # thread time per frame
+    if p.self_check:
+        summary = dict(checked=len(checks), fallen_back=int((~ok).sum()),
+                       median_error=float(np.median([c["error"] for c in checks])) if checks else None,
+                       median_sharpness=float(np.median([c["sharpness"] for c in checks])) if checks else None)
+        log.info("self-check: %d frames checked, %d fell back to the target frame (mouth error > %.2f × IOD or "
+                 "sharpness > %.1f×; median error %.3f, median sharpness %.2f×)", summary["checked"],
+                 summary["fallen_back"], p.check_max_error, p.check_max_sharpness,
+                 summary["median_error"] or float("nan"), summary["median_sharpness"] or float("nan"))
+        ms["self_check"] = summary
+    return ms
 
 
 class _Null:

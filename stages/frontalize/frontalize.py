@@ -144,19 +144,29 @@ def frontalize_block(job: dict) -> int:
     return int(pok.sum())
 
 
-def run(params: Params, ingest_path: str, landmarks_path: str, out: str) -> dict:
+def run(params: Params, ingest_path: str, landmarks_path: str, out: str, shape3d: np.ndarray | None = None) -> dict:
+    """Frontalize every frame of the stores into ``out``.
+
+    ``shape3d`` (68, 3) mm: a 3D face model to use as it is (``lipsynth speak`` passes the corpus
+    model of a model folder for a target of the same speaker: pose alone is solved per frame);
+    None builds the model from the training videos' frames.
+    """
     p = params.frontalize
     src, lmg = open_group(ingest_path), open_group(landmarks_path)
     videos = [dict(v) for v in lmg.attrs["videos"]]
     valid = np.asarray(lmg["valid"][...])
     n, shard = len(valid), src["crops"].shards[0]
-    pick = sample_model_frames(videos, valid, p.model_frames)
-    lms = np.asarray(lmg["landmarks"].get_orthogonal_selection((pick,)), np.float64)
-    by_frame = {}
-    for v in videos:
-        by_frame.update({i: v for i in range(v["first_frame"], v["first_frame"] + v["n_frames"])})
-    Ks = [intrinsics(by_frame[i]["width"], by_frame[i]["height"], p.focal_factor) for i in pick]
-    shape, report = build_model(lms, Ks, p)
+    if shape3d is None:
+        pick = sample_model_frames(videos, valid, p.model_frames)
+        lms = np.asarray(lmg["landmarks"].get_orthogonal_selection((pick,)), np.float64)
+        by_frame = {}
+        for v in videos:
+            by_frame.update({i: v for i in range(v["first_frame"], v["first_frame"] + v["n_frames"])})
+        Ks = [intrinsics(by_frame[i]["width"], by_frame[i]["height"], p.focal_factor) for i in pick]
+        shape, report = build_model(lms, Ks, p)
+    else:
+        shape, report = np.asarray(shape3d, np.float64), dict(method="given")
+        log.info("3D model: given (the model folder's corpus model); solving the pose of every frame")
     surface, known = build_surface(shape, p)
     win = texture_window(p)
     points = win.grid_points(surface)

@@ -6,7 +6,10 @@
    decided by the conditioning of the measurement matrix (s3 / s4, see ``conditioning``).
 2. Refinement: pycolmap bundle adjustment of the rigid landmarks over sampled frames (poses and
    points free, intrinsics fixed), then the non-rigid points (mouth, jaw) triangulated with
-   the poses held constant.
+   the poses held constant. On a short clip with little head rotation depth is unobservable and
+   that free fit can run off (points metres along their rays, a depth-inverted face); so it is
+   compared, by the per-frame PnP error it gives, with its depth flip, a fit regularised towards
+   the start shape (``refine_with_prior``) and the start itself, and the best face is kept.
 3. Canonical frame: origin between the outer eye corners, x along the eye line, z into the
    head (normal of the face plane), y down; scaled so the outer-eye-corner distance is 90 mm.
 """
@@ -121,8 +124,14 @@ def factorize(landmarks: np.ndarray) -> np.ndarray:
     return _to_canonical(shape)
 
 
-def _to_canonical(X: np.ndarray) -> np.ndarray:
-    """Express a (68, 3) shape in the canonical face frame (see module doc), IOD = IOD_MM."""
+def _to_canonical(X: np.ndarray, allow_reflection: bool = True) -> np.ndarray:
+    """Express a (68, 3) shape in the canonical face frame (see module doc), IOD = IOD_MM.
+
+    ``allow_reflection``: a shape whose chin comes out above the nose bridge is reflected back
+    (right for a factorisation, which is defined only up to a mirror image). A shape refined
+    against perspective images is not: reflecting it would make it inconsistent with every
+    pose it was fitted to, so with False it is only rotated and scaled (see ``_plausible``).
+    """
     X = np.asarray(X, np.float64)
     plane = X[[36, 39, 42, 45, 31, 35, 48, 54]]
     c = plane.mean(0)
@@ -136,9 +145,78 @@ def _to_canonical(X: np.ndarray) -> np.ndarray:
     R = np.stack([x, y, z])
     origin = (X[REO] + X[LEO]) / 2
     out = (X - origin) @ R.T
-    if out[8, 1] < out[27, 1]:           # chin above the nose bridge: a mirror image (factorisation
-        out[:, 1] *= -1                  # sign ambiguity) — reflect it back
+    if allow_reflection and out[8, 1] < out[27, 1]:   # chin above the nose bridge: a mirror image
+        out[:, 1] *= -1                  # (factorisation sign ambiguity) — reflect it back
     return out * (IOD_MM / np.linalg.norm(out[LEO] - out[REO]))
+
+
+def _plausible(X: np.ndarray) -> bool:
+    """Is a canonical (68, 3) shape a face at all (finite, head-sized, nose in front, chin below)?
+
+    Bundle adjustment of a short, nearly rigid clip can run off along its unobservable depth
+    direction (points 10⁶ mm deep, a depth-inverted or mirrored face) while its own RMS stays low.
+    """
+    if not np.all(np.isfinite(X)) or np.abs(X).max() > 300.0:
+        return False
+    z = X[:, 2]
+    return bool(np.ptp(z[RIGID]) < 250.0 and z[30] < min(z[LEO], z[REO]) and z[[0, 16]].mean() > z[30]
+                and X[8, 1] > X[30, 1] > X[27, 1])
+
+
+def frame_errors(shape: np.ndarray, observations: list[np.ndarray], cameras: list[np.ndarray]) -> np.ndarray:
+    """Per-frame RMS reprojection error (px) of the rigid landmarks, each pose solved globally by PnP."""
+    return np.array([solve_pose(shape[RIGID], obs[RIGID], K)[2] for obs, K in zip(observations, cameras)])
+
+
+def refine_with_prior(start: np.ndarray, observations: list[np.ndarray], cameras: list[np.ndarray],
+                      weight: float = 2.0, iterations: int = 30, tol: float = 1e-4) -> np.ndarray:
+    """Bundle adjustment regularised towards ``start`` (resection–intersection), → (68, 3) canonical.
+
+    Minimises Σ_f Σ_k |π_f(X_k) − u_fk|² + weight · s² Σ_k |X_k − start_k|², with s the face's
+    mean scale in px/mm, i.e. the start counts as ``weight`` frontal views of every point. Poses
+    (PnP on the rigid points) and points (one Gauss–Newton step each, all 68 independent given
+    the poses) alternate. Depth a clip with little head rotation cannot observe stays at the
+    start; what it does observe (the 2D shape, rotation parallax) is fitted. The prior also fixes
+    the gauge, so nothing can drift to infinity. Deterministic (no randomness, fixed order).
+    """
+    S0 = np.asarray(start, np.float64)
+    obs = np.asarray(observations, np.float64)                       # (F, 68, 2)
+    Ks = np.asarray(cameras, np.float64)                              # (F, 3, 3)
+    scale = float(np.mean(np.linalg.norm(obs[:, LEO] - obs[:, REO], axis=1))) / np.linalg.norm(S0[LEO] - S0[REO])
+    lam = weight * scale ** 2
+    X = S0.copy()
+    poses = [None] * len(obs)
+    prev = np.inf
+    for _ in range(iterations):
+        sq = 0.0
+        for f in range(len(obs)):
+            r, t, e = solve_pose(X[RIGID], obs[f, RIGID], Ks[f], poses[f])
+            if poses[f] is not None and not np.isfinite(e):
+                r, t, e = solve_pose(X[RIGID], obs[f, RIGID], Ks[f])
+            poses[f] = (r, t)
+            sq += e ** 2
+        rms = np.sqrt(sq / len(obs))
+        if prev - rms < tol * prev:
+            break
+        prev = rms
+        Rs = np.stack([rotation(r) for r, _ in poses])                  # (F, 3, 3)
+        ts = np.stack([t for _, t in poses])                             # (F, 3)
+        P = np.einsum("fij,kj->fki", Rs, X) + ts[:, None]               # (F, 68, 3) camera coords
+        zc = P[..., 2:3]
+        fx, fy = Ks[:, 0, 0][:, None], Ks[:, 1, 1][:, None]
+        uv = np.stack([fx * P[..., 0] / zc[..., 0] + Ks[:, 0, 2][:, None],
+                       fy * P[..., 1] / zc[..., 0] + Ks[:, 1, 2][:, None]], -1)
+        res = obs - uv                                                   # (F, 68, 2)
+        dproj = np.zeros(P.shape[:2] + (2, 3))                           # d uv / d P
+        dproj[..., 0, 0] = fx / zc[..., 0]
+        dproj[..., 0, 2] = -fx * P[..., 0] / zc[..., 0] ** 2
+        dproj[..., 1, 1] = fy / zc[..., 0]
+        dproj[..., 1, 2] = -fy * P[..., 1] / zc[..., 0] ** 2
+        J = np.einsum("fkab,fbc->fkac", dproj, Rs)                       # (F, 68, 2, 3) d uv / d X
+        H = np.einsum("fkai,fkaj->kij", J, J) + lam * np.eye(3)
+        g = np.einsum("fkai,fka->ki", J, res) + lam * (S0 - X)
+        X = X + np.linalg.solve(H, g[..., None])[..., 0]
+    return _to_canonical(X, allow_reflection=False)
 
 
 def bundle_adjust(shape: np.ndarray, observations: list[np.ndarray], cameras: list[np.ndarray],
@@ -210,7 +288,40 @@ def bundle_adjust(shape: np.ndarray, observations: list[np.ndarray], cameras: li
     solve(set(range(68)) - set(RIGID.tolist()), poses_free=False)
     after = _rms(rec, pids, observations, cameras)
     refined = np.array([rec.point3D(pids[k]).xyz for k in range(68)])
-    return _to_canonical(refined), before, after
+    return _select(shape, _to_canonical(refined, allow_reflection=False), before, after, observations, cameras)
+
+
+def _select(start, refined, before, after, observations, cameras):
+    """Keep the best of three fits by the per-frame PnP error they give (the way they are used).
+
+    Candidates, in order of preference on a tie: the free bundle adjustment ``refined`` (canonical
+    frame, rotated only), its depth flip (a depth-inverted fit reflected back: under the nearly
+    affine view of a face it fits as well, with other poses), a bundle adjustment regularised
+    towards the start (``refine_with_prior``), the start itself. On a short clip with little head
+    rotation depth is unobservable and the free fit can leave the face altogether (points metres
+    deep, nose behind the eyes: ``_plausible``) while its own joint RMS looks fine.
+    """
+    cands = [("free", refined, after)]
+    flipped = _to_canonical(refined)       # depth-inverted fit reflected back (Necker reversal)
+    if not np.allclose(flipped, refined):
+        cands.append(("free, depth-flipped", flipped, None))
+    cands += [("regularised", refine_with_prior(start, observations, cameras), None), ("start", start, None)]
+    best = None
+    for name, X, rms in cands:
+        if not _plausible(X):
+            log.info("bundle adjustment candidate %s: not a face (rejected)", name)
+            continue
+        errs = frame_errors(X, observations, cameras)
+        med = float(np.median(errs))
+        log.info("bundle adjustment candidate %s: per-frame PnP RMS median %.2f px", name, med)
+        if best is None or med < best[0]:
+            best = (med, name, X, float(np.sqrt(np.mean(errs ** 2))) if rms is None else rms)
+    if best is None:                       # nothing face-like: the start, as it was given
+        return start, before, after
+    if best[1] != "free":
+        log.info("3D model: %s fit kept (free bundle adjustment: %s)", best[1],
+                 "not a face" if not _plausible(refined) else "higher per-frame error")
+    return best[2], before, best[3]
 
 
 def _rms(rec, pids, observations, cameras) -> float:

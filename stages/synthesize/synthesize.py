@@ -75,7 +75,7 @@ def candidate_pool(stores: dict, target: dict, p: Synthesize) -> np.ndarray:
     others = [v for v in fr.attrs["videos"] if v["split"] == "train" and v["n_frames"] and not v.get("excluded")
               and v["name"] != target["name"]]
     if not others:
-        log.info("candidate pool: the target's %d usable frames (a longer target covers more mouth shapes)", len(own))
+        log.debug("candidate pool: the target's %d usable frames", len(own))
         return own
     # whole videos spread evenly over the corpus: contiguous runs are cheap to read from the store
     room = p.pool_max - len(own)
@@ -86,6 +86,30 @@ def candidate_pool(stores: dict, target: dict, p: Synthesize) -> np.ndarray:
     log.info("target has %d usable frames (< pool_min %d): adding %d training frames of the corpus",
              len(own), p.pool_min, len(extra))
     return np.concatenate([own, extra])
+
+
+def read_pool(stores: dict, entry: dict, p: Synthesize):
+    """The candidate pool's frames: ids (P,) int64, textures (P, 3T/2, T) I420, clothing masks
+    (P, T, T) bool, frontal landmarks (P, 68, 2) and poses (P, 6).
+
+    Frames of the stores (``candidate_pool``) carry their global frame index as id; when
+    ``stores`` has a ``bank`` (a model folder's candidate bank, ``lipsynth speak`` for a target of
+    the model's speaker) its frames follow with ids −1, −2, …
+    """
+    fr = stores["frontalize"]
+    pool = candidate_pool(stores, entry, p)
+    parts = [pool, take(fr["texture"], pool), take(fr["clothing_mask"], pool),
+             np.asarray(take(fr["frontal_landmarks"], pool), np.float64), np.asarray(take(fr["pose"], pool), np.float64)]
+    if "bank" in stores:
+        b = stores["bank"]
+        room = max(p.pool_max - len(pool), 0)
+        k = np.arange(b["texture"].shape[0])
+        k = k[np.unique(np.linspace(0, len(k) - 1, min(room, len(k))).round().astype(int))] if room else k[:0]
+        bank = [-1 - k, np.asarray(b["texture"][...])[k], np.asarray(b["clothing_mask"][...])[k],
+                np.asarray(b["frontal_landmarks"][...], np.float64)[k], np.asarray(b["pose"][...], np.float64)[k]]
+        log.info("candidate pool: %d frames of the target + %d of the model's candidate bank", len(pool), len(k))
+        parts = [np.concatenate([a, c]) for a, c in zip(parts, bank)]
+    return tuple(parts)
 
 
 def retarget(lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray) -> np.ndarray:
@@ -155,8 +179,13 @@ def run(params: Params, out: str, stores: dict, entry: dict) -> dict:
     fr, lmg = stores["frontalize"], stores["landmarks"]
     n_usable = len(usable(fr, lmg, entry))
     if entry.get("excluded") or not n_usable or n_usable < p.min_target_fraction * entry["n_frames"]:
-        raise LipsynthError(f"{entry['path']}: target has a tracked face in only {n_usable} of "
-                            f"{entry['n_frames']} frames (synthesize.min_target_fraction={p.min_target_fraction})")
+        sl = slice(entry["first_frame"], entry["first_frame"] + entry["n_frames"])
+        n_face = int(np.asarray(lmg["valid"][sl]).sum())
+        why = (f"a tracked face in only {n_face} of {entry['n_frames']} frames" if entry.get("excluded") or
+               n_face < p.min_target_fraction * entry["n_frames"] else
+               f"a face in {n_face} of {entry['n_frames']} frames, but a head pose (3D fit within "
+               f"frontalize.max_reprojection) in only {n_usable}: the 3D face model does not fit this video")
+        raise LipsynthError(f"{entry['path']}: target has {why} (synthesize.min_target_fraction={p.min_target_fraction})")
     timing: dict = {}
     t0 = t_start = time.perf_counter()
     samples = load_audio(p.audio)
@@ -180,10 +209,7 @@ def run(params: Params, out: str, stores: dict, entry: dict) -> dict:
     mapping, repeated = output_timing(samples, n_out, target_lm, entry["fps"], p)
     timing["retiming"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    pool = candidate_pool(stores, entry, p)
-    flm = np.asarray(take(fr["frontal_landmarks"], pool), np.float64)
-    pool_tex = take(fr["texture"], pool)     # (P, 3T/2, T) I420
-    pool_cloth = take(fr["clothing_mask"], pool)                      # (P, T, T) bool: inpainted pixels
+    pool, pool_tex, pool_cloth, flm, pose = read_pool(stores, entry, p)
     shapes = flm[:, LIP_POINTS]
     if p.retarget == "always" or (p.retarget == "auto" and not same_corpus):
         lips = retarget(lips, mouth["mean_shape"], shapes)
@@ -195,7 +221,6 @@ def run(params: Params, out: str, stores: dict, entry: dict) -> dict:
                                  f"usable frame of the candidate pool (0 … {entry['n_frames'] - 1}, tracked face)")
         return None if j is None else int(hit[0])
 
-    pose = np.asarray(take(fr["pose"], pool), np.float64)
     yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
     upper, lower = tx.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
                                          s_max=p.teeth_s_max, v_min=p.teeth_v_min, upper=to_pool(up), lower=to_pool(lo))

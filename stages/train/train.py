@@ -2,7 +2,8 @@
 
 Model families live beside each other in this folder; ``lstm`` (the paper's time-delayed LSTM)
 is the default. Whatever the family, the stage writes one self-contained model folder
-(``models/<model>/``: weights, input normalisation, PCA basis, params), DVC metrics
+(``models/<model>/``: weights, input normalisation, PCA basis, params, and its speaker — identity,
+3D face model, candidate bank — for ``lipsynth speak``), DVC metrics
 (``metrics/train.json``: losses, validation mouth error of the model and of the baselines —
 the mean mouth shape and the same LSTM without delay) and the loss curves (``plots/``).
 
@@ -24,6 +25,7 @@ from pipeline.params import Params, Train, as_dict
 from pipeline.runner import stage_main
 from pipeline.store import atomic_output, open_group
 from stages.train import evaluate
+from stages.train.speaker import export_speaker
 from pipeline.model_folder import save_model
 from pipeline.mouth_prediction import to_frames
 
@@ -93,7 +95,10 @@ def score(preds100: list, data: dict, basis: dict, iod_px: float) -> dict:
                                     [s["fps"] for s in data["val"]], basis, iod_px)
 
 
-def run(params: Params, ingest_path: str, pca_path: str) -> dict:
+def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | None = None,
+        frontalize_path: str | None = None) -> dict:
+    """Train ``train.model``; the model folder also gets the speaker (identity, 3D model, candidate
+    bank, ``stages/train/speaker``) when the landmarks and frontalize stores are given."""
     from pipeline.delayed_lstm import pick_device
     p = params.train
     if p.model not in MODELS:
@@ -124,6 +129,9 @@ def run(params: Params, ingest_path: str, pca_path: str) -> dict:
         save_model(tmp, model, dict(model=p.model, delay=p.delay, hidden=p.hidden, layers=p.layers,
                                     n_features=int(mean.shape[0]), n_components=k, feature_rate=100.0,
                                     feature_norm=p.feature_norm, params=as_dict(p)), mean, std, basis, pattrs)
+        if landmarks_path and frontalize_path:
+            metrics["speaker"] = export_speaker(tmp, ingest_path, landmarks_path, frontalize_path,
+                                                p.bank_frames, p.identity_frames)
     write_outputs(metrics, curves, p)
     return metrics
 
@@ -146,7 +154,8 @@ def write_outputs(metrics: dict, curves: dict, p: Train) -> None:
 
 
 def main(argv=None) -> int:
-    return stage_main("lipsynth train", __doc__, lambda p: run(p, p.ingest.out, p.pca.out), argv)
+    return stage_main("lipsynth train", __doc__, lambda p: run(p, p.ingest.out, p.pca.out, p.landmarks.out, p.frontalize.out),
+                      argv)
 
 
 if __name__ == "__main__":

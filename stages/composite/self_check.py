@@ -1,0 +1,80 @@
+"""Per-frame self-check of the composite: is the mouth in the output where, and what, it should be?
+
+dlib's 68-point predictor re-reads every output frame inside the target's face box; its 20 mouth
+points (48–67) are compared with the synthesized mouth — the candidates' weighted landmarks in
+the texture, taken through the frame's pose onto the frame. A render-back that went wrong (a
+smeared blob, a mouth in the wrong place, a lipless ring) moves dlib's points far from them; an
+over-sharpened or scribbled mouth multiplies the mouth box's Laplacian energy. Frames that fail
+fall back to the target frame, cross-faded over ``fade`` frames on each side
+(``fallback_weights``).
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from pipeline.canonical import Surface, TextureWindow
+from pipeline.face import MOUTH, interocular, predict_landmarks
+from pipeline.geometry import project
+
+
+def to_frame(uv: np.ndarray, surface: Surface, window: TextureWindow, rvec, tvec, K: np.ndarray) -> np.ndarray:
+    """Texture-pixel points (K, 2) on the extended face surface → frame pixels (K, 2) at a pose."""
+    xy = window.to_mm(np.asarray(uv, np.float64))
+    return project(np.column_stack([xy, surface.z(xy[:, 0], xy[:, 1])]), rvec, tvec, K)
+
+
+def face_box(lm: np.ndarray) -> np.ndarray:
+    """A dlib-like face box [x0, y0, x1, y1] from 68 frame landmarks (jawline and brows)."""
+    pts = lm[:27]
+    return np.r_[pts.min(0), pts.max(0)]
+
+
+def laplacian_energy(gray: np.ndarray, box) -> float:
+    """Mean squared Laplacian of ``gray`` (H, W) uint8 inside ``box`` = [x0, y0, x1, y1]."""
+    h, w = gray.shape
+    x0, y0 = max(int(box[0]), 0), max(int(box[1]), 0)
+    x1, y1 = min(int(np.ceil(box[2])), w), min(int(np.ceil(box[3])), h)
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        return float("nan")
+    lap = cv2.Laplacian(gray[y0:y1, x0:x1].astype(np.float32), cv2.CV_32F)
+    return float(np.mean(lap ** 2))
+
+
+def check_frame(result: np.ndarray, target: np.ndarray, expected: np.ndarray) -> dict:
+    """Measure one composited frame.
+
+    result, target : (H, W, 3) uint8 RGB — the output frame and the target frame under it.
+    expected : (68, 2) frame px — where the output's landmarks should be: the target's own
+        landmarks with the mouth (48–67) replaced by the synthesized one.
+
+    Returns dict(error: mean distance of dlib's mouth points on ``result`` to ``expected``'s, in
+    inter-ocular distances; sharpness: the mouth box's Laplacian energy in ``result`` over that in
+    ``target``).
+    """
+    gray = cv2.cvtColor(result, cv2.COLOR_RGB2GRAY)
+    found = predict_landmarks(gray, face_box(expected))
+    iod = float(interocular(expected))
+    err = float(np.linalg.norm(found[MOUTH] - expected[MOUTH], axis=1).mean() / max(iod, 1e-6))
+    m = expected[MOUTH]
+    pad = 0.3 * (m.max(0) - m.min(0))
+    box = np.r_[m.min(0) - pad, m.max(0) + pad]
+    e_out = laplacian_energy(gray, box)
+    e_tgt = laplacian_energy(cv2.cvtColor(target, cv2.COLOR_RGB2GRAY), box)
+    return dict(error=err, sharpness=e_out / max(e_tgt, 1e-6))
+
+
+def passes(check: dict, max_error: float, max_sharpness: float) -> bool:
+    return bool(check["error"] <= max_error and check["sharpness"] <= max_sharpness)
+
+
+def fallback_weights(ok: np.ndarray, fade: int) -> np.ndarray:
+    """Weight (N,) of the composited frame per output frame: 0 at a failed frame, rising linearly
+    to 1 over ``fade`` frames on either side (the rest is the target frame)."""
+    ok = np.asarray(ok, bool)
+    n = len(ok)
+    bad = np.flatnonzero(~ok)
+    if not len(bad):
+        return np.ones(n)
+    dist = np.abs(np.arange(n)[:, None] - bad[None, :]).min(1)
+    return np.clip(dist / (fade + 1), 0.0, 1.0)

@@ -1,0 +1,45 @@
+"""The composite's per-frame self-check: the measure, the pass rule and the cross-fade weights."""
+import cv2
+import numpy as np
+import skimage.data
+
+from pipeline import face
+from stages.composite.self_check import check_frame, fallback_weights, passes
+
+
+def test_fallback_weights_fade_around_failed_frames():
+    ok = np.ones(12, bool)
+    assert np.all(fallback_weights(ok, 3) == 1)
+    ok[5] = False
+    w = fallback_weights(ok, 3)
+    np.testing.assert_allclose(w, [1, 1, .75, .5, .25, 0, .25, .5, .75, 1, 1, 1])
+    ok[0] = False                                            # a failure at the start fades out only
+    assert fallback_weights(ok, 3)[0] == 0 and fallback_weights(ok, 3)[1] == 0.25
+    assert np.all(fallback_weights(ok, 0)[ok] == 1)          # no fade: only the failed frames fall back
+
+
+def _photo():
+    rgb = skimage.data.astronaut()
+    gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    box, _ = face.detect_faces(gray)[0]
+    return rgb, face.predict_landmarks(gray, box).astype(np.float64)
+
+
+def test_check_passes_a_real_face_and_catches_a_wrong_mouth():
+    rgb, lm = _photo()
+    good = check_frame(rgb, rgb, lm)
+    assert good["error"] < 0.03 and abs(good["sharpness"] - 1) < 1e-6
+    assert passes(good, 0.12, 4.0)
+    # the synthesized mouth claimed 30 % of the inter-ocular distance lower than where it is
+    moved = lm.copy()
+    moved[48:68, 1] += 0.3 * face.interocular(lm)
+    bad = check_frame(rgb, rgb, moved)
+    assert bad["error"] > 0.12 and not passes(bad, 0.12, 4.0)
+    # scribbles over the mouth: far sharper than the target there
+    noisy = rgb.copy()
+    m = lm[48:68].astype(int)
+    x0, y0 = m.min(0)
+    x1, y1 = m.max(0)
+    noise = np.random.default_rng(0).integers(0, 255, (y1 - y0, x1 - x0, 3), dtype=np.uint8)
+    noisy[y0:y1, x0:x1] = noise
+    assert check_frame(noisy, rgb, lm)["sharpness"] > 4.0

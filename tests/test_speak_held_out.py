@@ -1,0 +1,84 @@
+"""`lipsynth speak` on GRID s1 clips held out of training, scored by the independent yardstick.
+
+A GRID s1 model is trained (session fixture) on every third clip of the corpus, leaving out the
+clips used here; each held-out clip is then its own audio and target (the paper's Video J
+setting, `--no-retime`) through the command users run, and `../shared/tools/lipsync_yardstick.py`
+(dlib on output vs original, no code shared with the project) measures the mouth. Bounds are the
+goals of issue 9 (mouth error / static error ≤ 0.70, opening correlation ≥ 0.85, best lag within
+one frame) with a margin for the smaller training set; no frame may fall back and no clip may
+break. A target of another person (GRID s4) must be recognised as such.
+"""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from pipeline.params import as_dict
+from tests.conftest import ROOT, SHARED, shared
+
+pytestmark = pytest.mark.slow
+
+HELD_OUT = ["bgan4n", "bgbh4n", "bgin3a", "bgit4n", "lwir3s", "sran9s"]
+
+
+@pytest.fixture(scope="session")
+def grid_model(tmp_path_factory):
+    """A GRID s1 model (model folder with speaker + bank) trained without the HELD_OUT clips."""
+    import yaml
+    from stages.pca import pca
+    from stages.train import train
+    from tests.stage_runner import make_params, run_preprocessing
+    clips = [c for c in sorted(shared("grid_s1", "video").glob("*.mp4"))
+             if c.stem not in HELD_OUT and c.stem != "pbio7a"][::3]
+    out = tmp_path_factory.mktemp("grid_model")
+    p = make_params(out, [str(c) for c in clips], data=dict(on_bad_input="skip", val_fraction=0.1),
+                    pca=dict(out=str(out / "pca.zarr")),
+                    train=dict(out=str(out / "model"), metrics=str(out / "train.json"),
+                               plots=str(out / "loss.csv"), baselines=False))
+    (out / "params.yaml").write_text(yaml.safe_dump(as_dict(p)))
+    run_preprocessing(p)
+    pca.run(p, p.ingest.out, p.landmarks.out, p.frontalize.out, p.pca.out)
+    train.run(p, p.ingest.out, p.pca.out, p.landmarks.out, p.frontalize.out)
+    return out
+
+
+def yardstick(model_dir, clips, tmp_path):
+    make = (f"{sys.executable} -m lipsynth.cli speak --model {model_dir / 'model'} --audio {{audio}} "
+            f"--target {{target}} --out {{out}} --no-retime --cache {tmp_path / 'cache'}")
+    tool = SHARED.parent / "tools" / "lipsync_yardstick.py"
+    if not tool.is_file():
+        pytest.skip(f"yardstick not available: {tool} is absent (CI provides ../shared)")
+    js = tmp_path / "yard.json"
+    r = subprocess.run([sys.executable, str(tool), "--make", make, "--json", str(js), *map(str, clips)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=1800)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads(js.read_text()), r.stdout + r.stderr
+
+
+def test_speak_on_held_out_clips_meets_the_goals(grid_model, tmp_path):
+    clips = [shared("grid_s1", "video", f"{c}.mp4") for c in HELD_OUT]
+    res, _ = yardstick(grid_model, clips, tmp_path)
+    summary = res["summary"] if "summary" in res else res
+    assert summary["ok"] == len(clips), summary                   # every clip produced and scored
+    assert summary["err_ratio"] <= 0.75, summary
+    assert summary["corr"] >= 0.80, summary
+    assert summary["within_1_frame"] >= 0.8, summary
+    assert summary["sharp"] <= 2.0, summary                       # no scribbled, over-sharp mouths
+
+
+def test_speak_reports_same_and_other_speaker(grid_model, tmp_path):
+    def run(target, audio):
+        out = tmp_path / f"{target.stem}.mp4"
+        r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "speak", "--model", str(grid_model / "model"),
+                            "--audio", str(audio), "--target", str(target), "--out", str(out),
+                            "--cache", str(tmp_path / "cache")], cwd=ROOT, capture_output=True, text=True,
+                           timeout=600)
+        assert r.returncode == 0 and out.is_file(), r.stderr[-3000:]
+        return r.stderr
+    audio = shared("grid_s1", "video", "bgan4n.mp4")
+    log = run(shared("grid_s1", "video", "sran9s.mp4"), audio)
+    assert "same speaker: corpus 3D model + candidate bank" in log
+    log = run(shared("grid_s4", "prbc8s.mpg"), audio)
+    assert "another person" in log and "candidate bank" not in log
+    assert "self-check:" in log
