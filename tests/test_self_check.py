@@ -4,7 +4,7 @@ import numpy as np
 import skimage.data
 
 from pipeline import face
-from stages.composite.self_check import check_frame, fallback_weights, passes
+from stages.composite.self_check import check_frame, fallback_weights, mouth_energy, passes
 
 
 def test_fallback_weights_fade_around_failed_frames():
@@ -27,13 +27,13 @@ def _photo():
 
 def test_check_passes_a_real_face_and_catches_a_wrong_mouth():
     rgb, lm = _photo()
-    good = check_frame(rgb, rgb, lm)
+    good = check_frame(rgb, lm, mouth_energy(rgb, lm))
     assert good["error"] < 0.03 and abs(good["sharpness"] - 1) < 1e-6
     assert passes(good, 0.12, 4.0)
     # the synthesized mouth claimed 30 % of the inter-ocular distance lower than where it is
     moved = lm.copy()
     moved[48:68, 1] += 0.3 * face.interocular(lm)
-    bad = check_frame(rgb, rgb, moved)
+    bad = check_frame(rgb, moved, mouth_energy(rgb, lm))
     assert bad["error"] > 0.12 and not passes(bad, 0.12, 4.0)
     # scribbles over the mouth: far sharper than the target there
     noisy = rgb.copy()
@@ -42,4 +42,4 @@ def test_check_passes_a_real_face_and_catches_a_wrong_mouth():
     x1, y1 = m.max(0)
     noise = np.random.default_rng(0).integers(0, 255, (y1 - y0, x1 - x0, 3), dtype=np.uint8)
     noisy[y0:y1, x0:x1] = noise
-    assert check_frame(noisy, rgb, lm)["sharpness"] > 4.0
+    assert check_frame(noisy, lm, mouth_energy(rgb, lm))["sharpness"] > 4.0

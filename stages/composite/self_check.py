@@ -4,7 +4,8 @@ dlib's 68-point predictor re-reads every output frame inside the target's face b
 points (48–67) are compared with the synthesized mouth — the candidates' weighted landmarks in
 the texture, taken through the frame's pose onto the frame. A render-back that went wrong (a
 smeared blob, a mouth in the wrong place, a lipless ring) moves dlib's points far from them; an
-over-sharpened or scribbled mouth multiplies the mouth box's Laplacian energy. Frames that fail
+over-sharpened or scribbled mouth multiplies the mouth box's Laplacian energy (compared with the
+sharpest real mouths of the target: the 90th percentile over sampled target frames). Frames that fail
 fall back to the target frame, cross-faded over ``fade`` frames on each side
 (``fallback_weights``).
 """
@@ -41,27 +42,37 @@ def laplacian_energy(gray: np.ndarray, box) -> float:
     return float(np.mean(lap ** 2))
 
 
-def check_frame(result: np.ndarray, target: np.ndarray, expected: np.ndarray) -> dict:
+def mouth_box(lm: np.ndarray) -> np.ndarray:
+    """[x0, y0, x1, y1] around the mouth (48–67) of 68 frame landmarks, 30 % margin each side."""
+    m = lm[MOUTH]
+    pad = 0.3 * (m.max(0) - m.min(0))
+    return np.r_[m.min(0) - pad, m.max(0) + pad]
+
+
+def mouth_energy(rgb: np.ndarray, lm: np.ndarray) -> float:
+    """Laplacian energy of the mouth box of a frame (H, W, 3) RGB with 68 landmarks (68, 2) px."""
+    return laplacian_energy(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), mouth_box(lm))
+
+
+def check_frame(result: np.ndarray, expected: np.ndarray, reference_energy: float) -> dict:
     """Measure one composited frame.
 
-    result, target : (H, W, 3) uint8 RGB — the output frame and the target frame under it.
+    result : (H, W, 3) uint8 RGB — the output frame.
     expected : (68, 2) frame px — where the output's landmarks should be: the target's own
         landmarks with the mouth (48–67) replaced by the synthesized one.
+    reference_energy : the mouth box's Laplacian energy in the sharpest real frames of the
+        target (an open mouth with teeth has more edges than a closed one, so the frame under
+        the output is no reference).
 
     Returns dict(error: mean distance of dlib's mouth points on ``result`` to ``expected``'s, in
-    inter-ocular distances; sharpness: the mouth box's Laplacian energy in ``result`` over that in
-    ``target``).
+    inter-ocular distances; sharpness: the mouth box's Laplacian energy in ``result`` over
+    ``reference_energy``).
     """
     gray = cv2.cvtColor(result, cv2.COLOR_RGB2GRAY)
     found = predict_landmarks(gray, face_box(expected))
     iod = float(interocular(expected))
     err = float(np.linalg.norm(found[MOUTH] - expected[MOUTH], axis=1).mean() / max(iod, 1e-6))
-    m = expected[MOUTH]
-    pad = 0.3 * (m.max(0) - m.min(0))
-    box = np.r_[m.min(0) - pad, m.max(0) + pad]
-    e_out = laplacian_energy(gray, box)
-    e_tgt = laplacian_energy(cv2.cvtColor(target, cv2.COLOR_RGB2GRAY), box)
-    return dict(error=err, sharpness=e_out / max(e_tgt, 1e-6))
+    return dict(error=err, sharpness=laplacian_energy(gray, mouth_box(expected)) / max(reference_energy, 1e-6))
 
 
 def passes(check: dict, max_error: float, max_sharpness: float) -> bool:
