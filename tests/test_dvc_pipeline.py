@@ -266,6 +266,8 @@ def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
     r = speak(project, tmp_path, "--audio", audio, "--target", target, "--out", out, "--no-retime")
     assert r.returncode == 0, r.stderr
     assert "re-targeting predicted mouth shapes" in r.stderr
+    assert "another person" in r.stderr and "candidate bank" not in r.stderr     # never the synthetic face's mouth
+    assert "self-check: 200 frames checked" in r.stderr
     landmarks = load_params(project / "params.yaml").landmarks
     out_gray, out_lm, out_ok = quality.video_landmarks(out, landmarks)
     ref_gray, ref_lm, ref_ok = quality.video_landmarks(target, landmarks)
@@ -276,6 +278,7 @@ def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
     assert np.median(lip_shift) < 0.08 * iod, np.median(lip_shift) / iod   # the mouth stays where it was
     box = quality.one_box(quality.mouth_boxes(ref_lm[ref_ok], ref_gray.shape[1:]))
     assert quality.mean_abs_difference(out_gray, ref_gray, box) > 3.0       # ... but it is a new mouth
+    assert quality.sharpness(out_gray, box) / quality.sharpness(ref_gray, box) < 2.0   # not a scribbled blob
     top = (0, 0, ref_gray.shape[2], int(ref_lm[ref_ok][:, 19, 1].min()) - 10)    # above the eyebrows
     assert quality.mean_abs_difference(out_gray, ref_gray, top) < 2.0      # the rest is the target
 
