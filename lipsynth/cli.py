@@ -21,6 +21,7 @@ COMMANDS = {
     "composite": ("stages.composite.composite", "synthesized textures into the target video → outputs/…/result.mp4"),
     "dvc-deps": ("lipsynth.dvc_deps", "check (or --write) the code deps of dvc.yaml's stages, derived from their imports"),
     "speak": ("lipsynth.speak", "audio + any video of the speaker → lip-synced MP4 (preprocesses the target)"),
+    "report": ("stages.report.report", "regenerate the HTML report (report.out/index.html), print its path; --open"),
 }
 
 

@@ -47,6 +47,7 @@ from pipeline.store import open_group
 from pipeline.params import Params, load_params
 from pipeline.runner import run_main, setup_logging
 from stages.composite import composite
+from stages.ingest.ingest import probe_video
 from stages.synthesize import synthesize
 
 log = logging.getLogger("lipsynth.speak")
@@ -138,8 +139,9 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     if not Path(out).absolute().parent.is_dir():
         raise ParameterError(f"--out {out}: the folder {Path(out).absolute().parent} does not exist")
     model = model or params.synthesize.model
-    load_audio(audio)                          # a bad audio file fails now, not after preprocessing
-    load_model(model)                          # so does a bad model folder
+    load_audio(audio)                          # a bad audio file fails now, not after preprocessing,
+    probe_video(str(target), params.ingest, require_audio=False)     # so does a target failing header checks
+    load_model(model)                          # and a bad model folder
     cache = cache or default_cache()
     p = landmarked_target(Path(target), params, cache)
     speaker, report = choose_speaker(p, model, target)

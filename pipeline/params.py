@@ -211,6 +211,22 @@ class Speak:
 
 
 @dataclass
+class Evaluate:
+    clips: int = 3
+    out: str = "outputs/evaluate"
+    metrics: str = "metrics/evaluate.json"
+    exclude_target_from_pool: bool = True
+    diagnostic: bool = True
+
+
+@dataclass
+class Report:
+    out: str = "reports/synthetic_speaker"
+    title: str = "lipsynth — synthetic speaker"
+    paper_delay_ms: float = 200.0
+
+
+@dataclass
 class Params:
     """The whole params file: one attribute per section."""
 
@@ -226,6 +242,8 @@ class Params:
     synthesize: Synthesize = field(default_factory=Synthesize)
     composite: Composite = field(default_factory=Composite)
     speak: Speak = field(default_factory=Speak)
+    evaluate: Evaluate = field(default_factory=Evaluate)
+    report: Report = field(default_factory=Report)
 
 
 SECTIONS = {f.name: f.default_factory for f in dataclasses.fields(Params)}

@@ -193,6 +193,9 @@ def probe_video(path: str, p: Ingest, require_audio: bool = True) -> dict:
         raise BadInputError(path, "no audio track (training videos need the speaker's audio)")
     if info.duration and info.duration < p.min_seconds:
         raise BadInputError(path, f"too short: {info.duration:.2f} s < ingest.min_seconds={p.min_seconds}")
+    if info.n_frames and info.n_frames / info.fps < p.min_seconds:     # the container may be longer (audio)
+        raise BadInputError(path, f"too short: {info.n_frames / info.fps:.2f} s of video "
+                                  f"< ingest.min_seconds={p.min_seconds}")
     est = info.n_frames or int(np.ceil(info.duration * info.fps))
     return dict(name=video_name(path), path=project_path(path), fps=info.fps, width=info.width,
                 height=info.height, est_frames=est, source_audio_rate=info.audio_rate,

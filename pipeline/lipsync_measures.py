@@ -1,0 +1,111 @@
+"""Lip-sync quality measures of a synthesized video against the original (paper 000 §4.1, "Video J").
+
+A clip used as its own target with its own audio and no re-timing has a ground truth: the
+original frames. Given landmarks (N, 68, 2) and grey frames (N, H, W) of both videos, these pure
+functions compare them: mouth landmark error next to a static mouth, inner-lip opening and its
+correlation and best lag, mouth-region mean absolute difference, sharpness and flicker. The pixel
+measures use the mouth region, a box around the original's lip landmarks.
+
+Used by the ``evaluate`` stage and by ``lipsynth.lipsync_quality`` (benchmarks).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .face import MOUTH as LIPS, interocular
+
+UPPER_INNER_LIP, LOWER_INNER_LIP = [61, 62, 63], [67, 66, 65]      # facing pairs of the inner lip
+
+
+def mouth_error(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(N,) mean distance over the 20 lip landmarks, px."""
+    return np.linalg.norm(pred[:, LIPS] - truth[:, LIPS], axis=-1).mean(-1)
+
+
+def static_mouth(truth: np.ndarray) -> np.ndarray:
+    """The baseline: every frame's lips replaced by the clip's median lip shape relative to the nose
+    bridge (landmark 27), i.e. a mouth that does not move. (N, 68, 2)."""
+    rel = truth[:, LIPS] - truth[:, 27:28]
+    out = truth.copy()
+    out[:, LIPS] = np.median(rel, axis=0) + truth[:, 27:28]
+    return out
+
+
+def inner_opening(lms: np.ndarray) -> np.ndarray:
+    """(N,) inner-lip opening: mean vertical gap between the inner upper and lower lip, px."""
+    return (lms[:, LOWER_INNER_LIP, 1] - lms[:, UPPER_INNER_LIP, 1]).mean(-1)
+
+
+def mouth_boxes(truth: np.ndarray, shape: tuple, margin: float = 0.35) -> np.ndarray:
+    """(N, 4) int boxes x0, y0, x1, y1 around the lips, grown by ``margin`` × the mouth width."""
+    lo, hi = truth[:, LIPS].min(1), truth[:, LIPS].max(1)
+    pad = margin * (hi[:, 0] - lo[:, 0])[:, None]
+    h, w = shape[:2]
+    b = np.hstack([np.floor(lo - pad), np.ceil(hi + pad)]).astype(int)
+    return np.clip(b, 0, [w, h, w, h])
+
+
+def one_box(boxes: np.ndarray) -> tuple[int, int, int, int]:
+    """The union of per-frame boxes: one fixed region for temporal measures."""
+    return int(boxes[:, 0].min()), int(boxes[:, 1].min()), int(boxes[:, 2].max()), int(boxes[:, 3].max())
+
+
+def mean_abs_difference(a: np.ndarray, b: np.ndarray, box) -> float:
+    """Mean |a − b| over frames (N, H, W) in the box, grey levels."""
+    x0, y0, x1, y1 = box
+    return float(np.abs(a[:, y0:y1, x0:x1].astype(np.float64) - b[:, y0:y1, x0:x1]).mean())
+
+
+def sharpness(frames: np.ndarray, box) -> float:
+    """Median over frames of the variance of the Laplacian in the box (grey levels²)."""
+    import cv2
+    x0, y0, x1, y1 = box
+    return float(np.median([cv2.Laplacian(f[y0:y1, x0:x1].astype(np.float64), cv2.CV_64F).var() for f in frames]))
+
+
+def flicker(frames: np.ndarray, box) -> float:
+    """Mean absolute temporal difference of consecutive frames in the box, grey levels."""
+    x0, y0, x1, y1 = box
+    crop = frames[:, y0:y1, x0:x1].astype(np.float64)
+    return float(np.abs(np.diff(crop, axis=0)).mean())
+
+
+def best_lag(a: np.ndarray, b: np.ndarray, max_lag: int = 5) -> int:
+    """Lag (frames) in ±``max_lag`` maximising the correlation of a[t + lag] with b[t] (NaN = missing)."""
+    best, score = 0, -np.inf
+    for lag in range(-max_lag, max_lag + 1):
+        x = a[max(lag, 0):len(a) + min(lag, 0)]
+        y = b[max(-lag, 0):len(b) + min(-lag, 0)]
+        ok = np.isfinite(x) & np.isfinite(y)
+        if ok.sum() > 5 and x[ok].std() > 0 and y[ok].std() > 0:
+            c = np.corrcoef(x[ok], y[ok])[0, 1]
+            if c > score:
+                best, score = lag, c
+    return best
+
+
+def compare(out_gray: np.ndarray, out_lm: np.ndarray, out_ok: np.ndarray,
+            ref_gray: np.ndarray, ref_lm: np.ndarray, ref_ok: np.ndarray) -> dict:
+    """All measures of an output video against its original (same length, same timing)."""
+    n = min(len(out_gray), len(ref_gray))
+    ok = out_ok[:n] & ref_ok[:n]
+    if ok.sum() < 10:
+        raise ValueError(f"landmarks found on both videos in only {int(ok.sum())} frames")
+    o, r = out_lm[:n][ok], ref_lm[:n][ok]
+    iod = np.median(interocular(r))
+    err, static = mouth_error(o, r), mouth_error(static_mouth(r), r)
+    box = one_box(mouth_boxes(ref_lm[:n][ref_ok[:n]], ref_gray.shape[1:]))
+    op_o, op_r = inner_opening(o), inner_opening(r)
+    seq_o, seq_r = np.full(n, np.nan), np.full(n, np.nan)
+    seq_o[ok], seq_r[ok] = op_o, op_r
+    sharp_o, sharp_r = sharpness(out_gray[:n], box), sharpness(ref_gray[:n], box)
+    flick_o, flick_r = flicker(out_gray[:n], box), flicker(ref_gray[:n], box)
+    return {
+        "frames": int(n), "frames_with_landmarks": int(ok.sum()), "interocular_px": float(iod),
+        "mouth_error_px": float(err.mean()), "mouth_error_iod_pct": float(100 * err.mean() / iod),
+        "static_mouth_error_px": float(static.mean()), "static_mouth_error_iod_pct": float(100 * static.mean() / iod),
+        "opening_corr": float(np.corrcoef(op_o, op_r)[0, 1]) if op_r.std() > 0 and op_o.std() > 0 else float("nan"),
+        "opening_best_lag": best_lag(seq_o, seq_r),
+        "mouth_mad": mean_abs_difference(out_gray[:n], ref_gray[:n], box),
+        "sharpness_ratio": sharp_o / sharp_r, "flicker_ratio": flick_o / flick_r, "mouth_box": list(box),
+    }

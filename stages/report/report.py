@@ -1,0 +1,332 @@
+"""report — one self-contained HTML page of the results: ``report.out``/index.html.
+
+What it shows, from the files the other stages write:
+
+- the model families trained on this corpus (today ``train.model``: the LSTM) on the same
+  validation frames, with their baselines as extra rows: mouth error (px, % IOD), ratio to the
+  mean shape, opening correlation, share of clips within one frame (``train.metrics``);
+- loss curves (``train.plots``) and the delay sweep (``delay_sweep.plots``) with the paper's
+  200 ms marked (``report.paper_delay_ms``);
+- the synthesized video's own quality (``evaluate.metrics``, paper Video J) and, for the
+  evaluated clips (worst, median and best by mouth error when there are more than three), the
+  inner-lip opening over time of the output against the original, and the diagnostic video
+  (target | result | texture, H.264) copied next to the page;
+- synthesis speed per phase from ``logs/*.timing.json`` when present (untracked: "not measured"
+  otherwise), the params file, the git commit and the date.
+
+Plots are inline SVG (matplotlib), videos are relative ``<video src>``: the folder works offline,
+copied anywhere. Everything but the date/commit line and the timings is deterministic.
+
+Run: ``python -m stages.report.report`` (the DVC stage) or ``lipsynth report [--params P] [--open]``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime as _dt
+import html
+import io
+import json
+import logging
+import math
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+from pipeline.params import Params, load_params
+from pipeline.runner import run_main, setup_logging
+from pipeline.store import atomic_output
+
+log = logging.getLogger("lipsynth.report")
+TIMING_LOGS = ("synthesize", "composite", "evaluate")
+
+
+# ---------------------------------------------------------------- reading inputs
+
+def read_json(path) -> dict | None:
+    p = Path(path)
+    return json.loads(p.read_text()) if p.is_file() else None
+
+
+def read_csv(path) -> list[dict]:
+    p = Path(path)
+    if not p.is_file():
+        return []
+    with open(p, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def num(x) -> float:
+    """A CSV/JSON cell as float (missing, empty or None → NaN)."""
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def git_commit(root: Path) -> str:
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
+                              timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown (no git)"
+    return (head or "unknown (not a git checkout)") + (" + uncommitted changes" if head and dirty else "")
+
+
+# ---------------------------------------------------------------- tables
+
+def fmt(x, digits: int = 2, pct: bool = False) -> str:
+    v = num(x)
+    if not math.isfinite(v):
+        return "—"
+    return f"{100 * v:.0f}%" if pct else f"{v:.{digits}f}"
+
+
+def model_rows(train: dict | None) -> list[list[str]]:
+    """Rows of the model-family table from one ``train.metrics`` file: the model, then its baselines."""
+    if not train:
+        return []
+    rows = []
+
+    def row(name, m, ratio):
+        rows.append([name, fmt(m.get("mouth_error_px")), fmt(m.get("mouth_error_iod_pct")), fmt(ratio),
+                     fmt(m.get("median_opening_corr"), 3), fmt(m.get("av_within_one_frame"), pct=True),
+                     str(m.get("n_clips", "—"))])
+    mean_px = num((train.get("baseline_mean_shape") or {}).get("mouth_error_px"))
+    model = train.get("model", "model")
+    row(f"{model} (delay {int(num(train.get('delay_steps', 0))) * 10} ms)", train.get("val", {}),
+        train.get("ratio_to_mean_shape"))
+    for key, name in (("baseline_lstm_delay0", f"baseline: {model}, delay 0"),
+                      ("baseline_mean_shape", "baseline: mean shape")):
+        if key in train:
+            b = train[key]
+            row(name, b, num(b.get("mouth_error_px")) / mean_px if mean_px else math.nan)
+    return rows
+
+
+EVAL_COLUMNS = [("mouth error (px)", "mouth_error_px", 2), ("% IOD", "mouth_error_iod_pct", 2),
+                ("static mouth (px)", "static_mouth_error_px", 2), ("error / static", "error_ratio", 2),
+                ("opening corr", "opening_corr", 3), ("best lag (frames)", "opening_best_lag", 0),
+                ("sharpness ratio", "sharpness_ratio", 2), ("flicker ratio", "flicker_ratio", 2),
+                ("mouth MAD", "mouth_mad", 1), ("frames fallen back", "fallen_back", 0)]
+
+
+def evaluate_rows(ev: dict | None) -> list[list[str]]:
+    """Per-clip rows and a median row of ``evaluate.metrics``."""
+    if not ev:
+        return []
+    rows = []
+    for c in ev.get("per_clip", []):
+        c = dict(c, error_ratio=num(c.get("mouth_error_px")) / num(c.get("static_mouth_error_px")))
+        rows.append([c.get("clip", "?")] + [fmt(c.get(k), d) for _, k, d in EVAL_COLUMNS])
+    med = ev.get("median") or {}
+    if med:
+        rows.append(["median"] + [fmt(med.get(k), d) if k in med else "" for _, k, d in EVAL_COLUMNS])
+    return rows
+
+
+def shown_clips(per_clip: list[dict]) -> list[tuple[str, dict]]:
+    """All clips when ≤ 3, else the worst, median and best by mouth error, labelled."""
+    if len(per_clip) <= 3:
+        return [("", c) for c in per_clip]
+    s = sorted(per_clip, key=lambda c: num(c.get("mouth_error_px")))
+    return [("worst", s[-1]), ("median", s[len(s) // 2]), ("best", s[0])]
+
+
+def table(header: list[str], rows: list[list[str]], cls: str = "") -> str:
+    h = "".join(f"<th>{html.escape(c)}</th>" for c in header)
+    b = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f'<table class="{cls}"><thead><tr>{h}</tr></thead><tbody>{b}</tbody></table>'
+
+
+def timing_tables(logs: dict[str, dict | None]) -> str:
+    out = []
+    for name, t in logs.items():
+        if not t:
+            out.append(f"<p><b>{html.escape(name)}</b>: not measured (no logs/{html.escape(name)}.timing.json)</p>")
+            continue
+        unit = "s per clip" if name == "evaluate" else "ms per frame (thread time) or as named"
+        rows = [[k, fmt(v, 2)] for k, v in t.items()]
+        out.append(f"<h3>{html.escape(name)} <small>({unit})</small></h3>" + table(["phase", "value"], rows, "timing"))
+    return "\n".join(out)
+
+
+# ---------------------------------------------------------------- plots (inline SVG)
+
+def svg(fig, name: str) -> str:
+    """A matplotlib figure as an inline <svg> element (no XML header, stable ids, no date)."""
+    import matplotlib
+    buf = io.StringIO()
+    with matplotlib.rc_context({"svg.hashsalt": name, "svg.fonttype": "none"}):
+        fig.savefig(buf, format="svg", metadata={"Date": None, "Creator": None}, bbox_inches="tight")
+    text = buf.getvalue()
+    text = re.sub(r"\s*<metadata>.*?</metadata>", "", text, flags=re.S)    # RDF creator/date block
+    return text[text.index("<svg"):]
+
+
+def figure(w: float = 6.4, h: float = 3.2):
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(w, h))
+    return fig, fig.add_subplot()
+
+
+def loss_plot(rows: list[dict]) -> str:
+    fig, ax = figure()
+    models = sorted({r.get("model", "model") for r in rows})
+    for m in models:
+        rs = [r for r in rows if r.get("model", "model") == m]
+        x = [num(r["epoch"]) for r in rs]
+        ax.plot(x, [num(r["train_loss"]) for r in rs], label=f"{m} train")
+        ax.plot(x, [num(r["val_loss"]) for r in rs], "--", label=f"{m} validation")
+    ax.set_xlabel("epoch"), ax.set_ylabel("loss (PCA coefficients, MSE)"), ax.set_yscale("log")
+    ax.grid(alpha=0.3), ax.legend(fontsize=8)
+    return svg(fig, "loss")
+
+
+def sweep_plot(rows: list[dict], paper_ms: float) -> str:
+    fig, ax = figure()
+    x = [num(r["delay_ms"]) for r in rows]
+    ax.plot(x, [num(r["val_loss"]) for r in rows], "o-", label="validation loss")
+    ax.axvline(paper_ms, color="tab:red", ls=":", label=f"paper: {paper_ms:g} ms")
+    ax.set_xlabel("target delay (ms)"), ax.set_ylabel("validation loss")
+    if rows and "val_mouth_error_px" in rows[0]:
+        ax2 = ax.twinx()
+        ax2.plot(x, [num(r["val_mouth_error_px"]) for r in rows], "s--", color="tab:green", label="mouth error (px)")
+        ax2.set_ylabel("validation mouth error (px)")
+    handles = [h for a in fig.axes for h in a.get_legend_handles_labels()[0]]
+    ax.grid(alpha=0.3), ax.legend(handles=handles, loc="upper center", fontsize=8)
+    return svg(fig, "sweep")
+
+
+def opening_plot(rows: list[dict], clip: str) -> str:
+    fig, ax = figure(7.0, 2.6)
+    t = [num(r["time_s"]) for r in rows]
+    ax.plot(t, [num(r["original_px"]) for r in rows], color="0.3", label="original (tracked)")
+    ax.plot(t, [num(r["output_px"]) for r in rows], color="tab:orange", label="synthesized (re-tracked)")
+    ax.set_xlabel("time (s)"), ax.set_ylabel("inner-lip opening (px)"), ax.set_title(clip, fontsize=9)
+    ax.grid(alpha=0.3), ax.legend(fontsize=8)
+    return svg(fig, f"opening-{clip}")
+
+
+# ---------------------------------------------------------------- the page
+
+CSS = """
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;padding:0 1em;color:#222}
+h1{font-size:1.6em}h2{margin-top:1.6em;border-bottom:1px solid #ccc}
+table{border-collapse:collapse;margin:.5em 0;font-size:.9em}
+td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
+td:first-child,th:first-child{text-align:left}tr:last-child td{font-weight:600}
+table.timing tr:last-child td{font-weight:normal}
+.plot svg{max-width:100%;height:auto}.clip{margin:1em 0;padding:.5em;border:1px solid #eee}
+video{max-width:100%;background:#000}pre{background:#f6f6f6;padding:.8em;overflow:auto;font-size:.8em}
+.meta{color:#666;font-size:.85em}
+"""
+
+
+def build_html(ctx: dict) -> str:
+    """The page from gathered inputs (pure: no file access). ``ctx`` keys: title, train, loss_rows,
+    sweep_rows, paper_delay_ms, evaluate, clips [(label, clip dict, opening rows, video src, duration)],
+    timings {name: dict|None}, params_text, commit, date."""
+    e = html.escape
+    parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{e(ctx['title'])}</title>"
+             f"<style>{CSS}</style></head><body>", f"<h1>{e(ctx['title'])}</h1>",
+             f"<p class=\"meta\" id=\"meta\">commit {e(ctx['commit'])} · generated {e(ctx['date'])}</p>"]
+    parts.append("<h2>Audio → mouth shape: model families</h2>")
+    rows = model_rows(ctx.get("train"))
+    if rows:
+        parts.append("<p>Validation videos (held out by video), lip landmarks predicted from audio against the "
+                     "tracked ones.</p>")
+        parts.append(table(["model", "mouth error (px)", "% IOD", "ratio to mean shape", "opening corr",
+                            "within one frame", "clips"], rows, "models"))
+    else:
+        parts.append("<p>No training metrics (run <code>dvc repro train</code>).</p>")
+    parts.append("<h2>Training</h2>")
+    if ctx.get("loss_rows"):
+        parts.append(f"<h3>Loss curves</h3><div class=\"plot\" id=\"plot-loss\">{loss_plot(ctx['loss_rows'])}</div>")
+    if ctx.get("sweep_rows"):
+        parts.append("<h3>Delay sweep (paper Fig. 9a)</h3><div class=\"plot\" id=\"plot-sweep\">"
+                     f"{sweep_plot(ctx['sweep_rows'], ctx.get('paper_delay_ms', 200.0))}</div>")
+    parts.append("<h2>Audio → video: the synthesized video against the original (Video J)</h2>")
+    ev = ctx.get("evaluate")
+    if ev:
+        parts.append(f"<p>{e(str(ev.get('setting', '')))}; candidates "
+                     f"{'only from other videos' if ev.get('exclude_target_from_pool') else 'include the target'}; "
+                     f"{ev.get('clips', 0)} validation clip(s). Ratios are output / original.</p>")
+        parts.append(table(["clip"] + [c for c, _, _ in EVAL_COLUMNS], evaluate_rows(ev), "evaluate"))
+    else:
+        parts.append("<p>Not evaluated (run <code>dvc repro evaluate</code>).</p>")
+    for label, clip, opening, src, duration in ctx.get("clips", []):
+        name = clip.get("clip", "?")
+        parts.append(f"<div class=\"clip\"><h3>{e(name)}{(' — ' + e(label)) if label else ''}: mouth error "
+                     f"{fmt(clip.get('mouth_error_px'))} px, opening corr {fmt(clip.get('opening_corr'), 3)}</h3>")
+        if opening:
+            parts.append(f"<div class=\"plot\">{opening_plot(opening, name)}</div>")
+        if src:
+            parts.append(f"<video controls muted preload=\"auto\" src=\"{e(src)}\" data-duration=\"{duration:.3f}\">"
+                         "</video><p class=\"meta\">target | result | synthesized texture</p>")
+        parts.append("</div>")
+    parts.append("<h2>Synthesis speed</h2>" + timing_tables(ctx.get("timings", {})))
+    parts.append(f"<h2>Parameters</h2><pre id=\"params\">{e(ctx.get('params_text', ''))}</pre>")
+    parts.append("</body></html>\n")
+    return "\n".join(parts)
+
+
+def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[dict, list[tuple[Path, str]]]:
+    """The page's inputs and the files to copy next to it (source, relative name)."""
+    ev = read_json(root / params.evaluate.metrics)
+    ev_dir = root / params.evaluate.out
+    clips, copies = [], []
+    for label, c in shown_clips((ev or {}).get("per_clip", [])):
+        video = c.get("diagnostic_video") or c.get("video")
+        src = None
+        if video and (ev_dir / video).is_file():
+            src = f"videos/{video}"
+            copies.append((ev_dir / video, src))
+        opening = read_csv(ev_dir / c["opening_csv"]) if c.get("opening_csv") else []
+        clips.append((label, c, opening, src, num(c.get("frames")) / num(c.get("fps", 25.0))))
+    ctx = dict(title=params.report.title, train=read_json(root / params.train.metrics),
+               loss_rows=read_csv(root / params.train.plots), sweep_rows=read_csv(root / params.delay_sweep.plots),
+               paper_delay_ms=params.report.paper_delay_ms, evaluate=ev, clips=clips,
+               timings={n: read_json(root / "logs" / f"{n}.timing.json") for n in TIMING_LOGS},
+               params_text=Path(params_file).read_text(), commit=git_commit(root),
+               date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"))
+    return ctx, copies
+
+
+def write_report(params: Params, params_file: Path) -> Path:
+    """Write ``report.out``/index.html and its videos atomically; returns the page's path."""
+    ctx, copies = gather(params, params_file)
+    with atomic_output(params.report.out) as tmp:
+        tmp.mkdir(parents=True)
+        for source, rel in copies:
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source, tmp / rel)
+        (tmp / "index.html").write_text(build_html(ctx))
+    page = Path(params.report.out) / "index.html"
+    log.info("wrote %s (%.1f kB page, %d videos)", page, page.stat().st_size / 1e3, len(copies))
+    return page
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="lipsynth report", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    ap.add_argument("--open", action="store_true", help="open the page in a web browser")
+    ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    a = ap.parse_args(argv)
+    setup_logging(a.verbose)
+
+    def go():
+        page = write_report(load_params(a.params), Path(a.params)).absolute()
+        print(page)
+        if a.open:
+            import webbrowser
+            webbrowser.open(page.as_uri())
+    return run_main(go)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

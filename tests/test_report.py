@@ -1,0 +1,284 @@
+"""The report page (stages/report) and the evaluate stage's pure pieces; a headless-Chromium check.
+
+Fast: the HTML builder on small fake metrics (table rows, one inline <svg> per plot, relative
+video src), deterministic SVG, the clip choice, the evaluate summaries, ``lipsynth report``.
+Slow: headless Chromium (DevTools protocol) loads a page from disk — no console errors, every
+<video> reaches readyState ≥ 2 with the right duration, every plot rendered — and saves a
+full-page screenshot to the test's temp dir.
+"""
+import base64
+import json
+import math
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from pipeline.params import Params, as_dict, parse
+from stages.evaluate import evaluate
+from stages.report import report
+from tests.conftest import ROOT
+
+TRAIN = {"model": "lstm", "delay_steps": 20,
+         "val": {"mouth_error_px": 0.94, "mouth_error_iod_pct": 1.31, "av_within_one_frame": 1.0,
+                 "median_opening_corr": 0.93, "n_clips": 1},
+         "baseline_mean_shape": {"mouth_error_px": 2.0, "mouth_error_iod_pct": 2.77, "av_within_one_frame": math.nan,
+                                 "median_opening_corr": math.nan, "n_clips": 0},
+         "baseline_lstm_delay0": {"mouth_error_px": 1.56, "mouth_error_iod_pct": 2.16, "av_within_one_frame": 1.0,
+                                  "median_opening_corr": 0.6, "n_clips": 1},
+         "ratio_to_mean_shape": 0.47}
+
+
+def clip(name, err, frames=50, fps=25.0):
+    return {"clip": name, "frames": frames, "fps": fps, "mouth_error_px": err, "mouth_error_iod_pct": err,
+            "static_mouth_error_px": 2.8, "static_mouth_error_iod_pct": 3.4, "opening_corr": 0.9,
+            "opening_best_lag": 0, "mouth_mad": 4.0, "sharpness_ratio": 0.7, "flicker_ratio": 0.96,
+            "fallen_back": 0, "video": f"{name}.mp4", "diagnostic_video": f"{name}.diagnostic.mp4",
+            "opening_csv": f"{name}.opening.csv"}
+
+
+def opening_rows(n=50, fps=25.0):
+    return [{"frame": str(i), "time_s": f"{i / fps:.4f}", "output_px": f"{3 + np.sin(i / 4):.3f}",
+             "original_px": f"{3 + np.sin(i / 4 + 0.2):.3f}"} for i in range(n)]
+
+
+def fake_ctx(n_clips=1):
+    clips = [clip(f"speaker_{i:02d}", 1.0 + i) for i in range(n_clips)]
+    ev = {"setting": "Video J", "exclude_target_from_pool": True, "clips": n_clips,
+          "median": evaluate.summarise(clips), "per_clip": clips}
+    loss = [{"model": "lstm", "epoch": str(e), "train_loss": str(100 / e), "val_loss": str(120 / e)} for e in range(1, 20)]
+    sweep = [{"delay_ms": str(d), "val_loss": str(50 - d / 10), "val_mouth_error_px": "1.2"} for d in (0, 50, 100, 200, 400)]
+    shown = [(label, c, opening_rows(), f"videos/{c['diagnostic_video']}", 2.0) for label, c in report.shown_clips(clips)]
+    return dict(title="t <&>", train=TRAIN, loss_rows=loss, sweep_rows=sweep, paper_delay_ms=200.0, evaluate=ev,
+                clips=shown, timings={"synthesize": {"prediction": 3.7}, "composite": None, "evaluate": None},
+                params_text="a: 1  # <b>\n", commit="abc123", date="2026-01-01 00:00 UTC")
+
+
+# ---------------------------------------------------------------- fast
+
+def test_model_table_has_the_model_and_its_baselines_with_ratios_to_the_mean_shape():
+    rows = report.model_rows(TRAIN)
+    assert [r[0] for r in rows] == ["lstm (delay 200 ms)", "baseline: lstm, delay 0", "baseline: mean shape"]
+    assert rows[0][1:6] == ["0.94", "1.31", "0.47", "0.930", "100%"]
+    assert rows[1][3] == "0.78" and rows[2][3] == "1.00" and rows[2][4] == "—"
+    assert report.model_rows(None) == []
+
+
+def test_page_has_tables_one_svg_per_plot_relative_videos_and_escapes_text():
+    page = report.build_html(fake_ctx(1))
+    assert page.count("<svg") == 3                    # loss, sweep, one opening plot
+    assert page.count("<video") == 1 and 'src="videos/speaker_00.diagnostic.mp4"' in page
+    assert 'data-duration="2.000"' in page
+    assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", page) and "<link" not in page   # no network
+    assert "<script" not in page
+    assert "t &lt;&amp;&gt;" in page and "# &lt;b&gt;" in page
+    assert page.count("<tr>") == 1 + 3 + 1 + 2 + 1 + 1    # model table, evaluate (clip + median), one timing table
+    assert "not measured" in page and "paper: 200 ms" in page
+
+
+def test_page_is_deterministic_apart_from_the_date_line():
+    a, b = fake_ctx(2), fake_ctx(2)
+    b["date"] = "2030-12-31 23:59 UTC"
+    strip = lambda s: "\n".join(l for l in s.splitlines() if 'id="meta"' not in l)  # noqa: E731
+    assert strip(report.build_html(a)) == strip(report.build_html(b))
+
+
+def test_more_than_three_clips_show_worst_median_and_best():
+    clips = [clip(f"c{i}", e) for i, e in enumerate([3.0, 1.0, 2.0, 5.0, 4.0])]
+    shown = report.shown_clips(clips)
+    assert [(label, c["clip"]) for label, c in shown] == [("worst", "c3"), ("median", "c0"), ("best", "c1")]
+    assert len(report.shown_clips(clips[:2])) == 2
+
+
+def test_evaluate_picks_spread_validation_clips_and_summarises():
+    videos = [{"name": f"v{i}", "split": "val" if i % 2 else "train", "n_frames": 10} for i in range(12)]
+    assert [v["name"] for v in evaluate.pick_clips(videos, 3)] == ["v1", "v3", "v9"]   # by name: v1 v11 v3 v5 v7 v9
+    assert len(evaluate.pick_clips(videos, 3)) == 3 and evaluate.pick_clips(videos[:1], 3) == []
+    med = evaluate.summarise([clip("a", 1.0), clip("b", 2.0), dict(clip("c", 3.0), opening_best_lag=4)])
+    assert med["mouth_error_px"] == 2.0 and med["error_ratio"] == pytest.approx(2.0 / 2.8)
+    assert med["within_1_frame"] == pytest.approx(2 / 3)
+    assert evaluate.rounded({"x": [float("nan"), 1.23456789]}) == {"x": [None, 1.234568]}
+
+
+def test_evaluate_clip_params_are_video_j_and_a_valid_params_file(tmp_path):
+    tree = evaluate.clip_params(Params(), {"name": "speaker_03", "path": "data/x/speaker_03.mp4"}, tmp_path, True, True)
+    p = parse(yaml.safe_load(yaml.safe_dump(tree)))
+    assert p.synthesize.retime is False and p.synthesize.exclude_target_from_pool is True
+    assert p.synthesize.audio == "data/x/speaker_03.mp4" and p.synthesize.target == "speaker_03"
+    assert p.synthesize.out.startswith(str(tmp_path)) and p.composite.out_dir.startswith(str(tmp_path))
+
+
+def write_fixture_project(tmp_path, video_seconds=2.0, fps=25.0):
+    """Fake metrics/plots/evaluate outputs in tmp_path, a real 2 s H.264 clip; returns the params file."""
+    from pipeline import media
+    tree = as_dict(Params())
+    tree["train"].update(metrics=str(tmp_path / "train.json"), plots=str(tmp_path / "loss.csv"))
+    tree["delay_sweep"]["plots"] = str(tmp_path / "sweep.csv")
+    tree["evaluate"].update(out=str(tmp_path / "evaluate"), metrics=str(tmp_path / "evaluate.json"))
+    tree["report"]["out"] = str(tmp_path / "report")
+    ctx = fake_ctx(1)
+    (tmp_path / "train.json").write_text(json.dumps(TRAIN))
+    for name, rows in (("loss.csv", ctx["loss_rows"]), ("sweep.csv", ctx["sweep_rows"])):
+        (tmp_path / name).write_text(",".join(rows[0]) + "\n" + "".join(",".join(r.values()) + "\n" for r in rows))
+    n = int(video_seconds * fps)
+    c = clip("speaker_00", 1.0, frames=n, fps=fps)
+    (tmp_path / "evaluate.json").write_text(json.dumps(dict(ctx["evaluate"], per_clip=[c])))
+    (tmp_path / "evaluate").mkdir()
+    rows = opening_rows(n, fps)
+    (tmp_path / "evaluate" / c["opening_csv"]).write_text(
+        "frame,time_s,output_px,original_px\n" + "".join(",".join(r.values()) + "\n" for r in rows))
+    yy, xx = np.mgrid[0:96, 0:160]
+    frames = [np.stack([(xx + 4 * i) % 256, yy * 2, np.full_like(xx, 128)], -1).astype(np.uint8) for i in range(n)]
+    media.write_video(tmp_path / "evaluate" / c["diagnostic_video"], frames, fps)
+    pfile = tmp_path / "params.yaml"
+    pfile.write_text(yaml.safe_dump(tree, sort_keys=False, allow_unicode=True))
+    return pfile, tree
+
+
+def test_lipsynth_report_writes_the_folder_and_prints_the_page_path(tmp_path):
+    pfile, tree = write_fixture_project(tmp_path)
+    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "report", "--params", str(pfile)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    page = Path(tree["report"]["out"]) / "index.html"
+    assert r.stdout.strip().splitlines()[-1] == str(page)
+    assert (page.parent / "videos" / "speaker_00.diagnostic.mp4").is_file()
+    text = page.read_text()
+    assert text.count("<svg") == 3 and 'src="videos/speaker_00.diagnostic.mp4"' in text
+    assert "lipsynth — synthetic speaker" in text and yaml.safe_load(pfile.read_text())["report"]["out"] in text
+
+
+# ---------------------------------------------------------------- slow: a real browser
+
+def chromium() -> str:
+    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        pytest.skip("chromium not installed (Debian package `chromium`; .ci/run installs it when it can)")
+    return exe
+
+
+class DevTools:
+    """A minimal Chrome DevTools protocol client over one websocket (flat sessions)."""
+
+    def __init__(self, url: str):
+        import websocket
+        self.ws = websocket.create_connection(url, timeout=60, suppress_origin=True)
+        self.next_id, self.events = 0, []
+
+    def call(self, method: str, session: str | None = None, **params):
+        self.next_id += 1
+        msg = {"id": self.next_id, "method": method, "params": params}
+        if session:
+            msg["sessionId"] = session
+        self.ws.send(json.dumps(msg))
+        while True:
+            r = json.loads(self.ws.recv())
+            if r.get("id") == self.next_id:
+                if "error" in r:
+                    raise RuntimeError(f"{method}: {r['error']}")
+                return r.get("result", {})
+            self.events.append(r)
+
+    def evaluate(self, session: str, expression: str):
+        r = self.call("Runtime.evaluate", session, expression=expression, returnByValue=True, awaitPromise=True)
+        if "exceptionDetails" in r:
+            raise RuntimeError(f"{expression[:60]}…: {r['exceptionDetails']}")
+        return r["result"].get("value")
+
+
+CHECKS = """(() => ({
+  ready: document.readyState,
+  videos: [...document.querySelectorAll('video')].map(v => ({src: v.getAttribute('src'), readyState: v.readyState,
+      duration: v.duration, expected: parseFloat(v.dataset.duration), error: v.error && v.error.code})),
+  svgs: [...document.querySelectorAll('svg')].map(s => {const r = s.getBoundingClientRect();
+      return {children: s.querySelectorAll('path,line,text,use').length, width: r.width, height: r.height};}),
+}))()"""
+
+
+def check_in_browser(page: Path, shot: Path) -> dict:
+    pytest.importorskip("websocket", reason="websocket-client (test extra) drives Chromium")
+    profile = shot.parent / "chromium-profile"
+    proc = subprocess.Popen([chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+                             "--remote-debugging-port=0", f"--user-data-dir={profile}", "--window-size=1280,900",
+                             "--autoplay-policy=no-user-gesture-required", "about:blank"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        port_file = profile / "DevToolsActivePort"
+        for _ in range(300):
+            if port_file.is_file() and len(port_file.read_text().split()) >= 2:
+                break
+            time.sleep(0.1)
+        else:
+            pytest.fail("chromium did not open its DevTools port within 30 s")
+        port, path = port_file.read_text().split()[:2]
+        dt = DevTools(f"ws://127.0.0.1:{port}{path}")
+        target = dt.call("Target.createTarget", url="about:blank")["targetId"]
+        s = dt.call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
+        for domain in ("Page", "Runtime", "Log"):
+            dt.call(f"{domain}.enable", s)
+        dt.call("Page.navigate", s, url=page.absolute().as_uri())
+        deadline = time.monotonic() + 60
+        while True:
+            state = dt.evaluate(s, CHECKS)
+            loaded = state["ready"] == "complete" and all(v["readyState"] >= 3 or v["error"] for v in state["videos"])
+            if loaded or time.monotonic() > deadline:
+                break
+            time.sleep(0.25)
+        time.sleep(0.5)                  # let the media controls drop their loading spinner
+        state = dt.evaluate(s, CHECKS)
+        size = dt.call("Page.getLayoutMetrics", s)["cssContentSize"]
+        png = dt.call("Page.captureScreenshot", s, format="png", captureBeyondViewport=True,
+                      clip={"x": 0, "y": 0, "width": size["width"], "height": size["height"], "scale": 1})["data"]
+        shot.write_bytes(base64.b64decode(png))
+        errors = [e["params"] for e in dt.events if e.get("method") == "Runtime.exceptionThrown"
+                  or (e.get("method") == "Runtime.consoleAPICalled" and e["params"].get("type") == "error")
+                  or (e.get("method") == "Log.entryAdded" and e["params"]["entry"].get("level") == "error")]
+        dt.call("Browser.close")
+        return dict(state, errors=errors)
+    finally:
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def assert_page_renders(state: dict, n_videos: int, n_svgs: int) -> None:
+    assert state["errors"] == [], state["errors"]
+    assert len(state["videos"]) == n_videos
+    for v in state["videos"]:
+        assert v["readyState"] >= 2, f"{v['src']}: readyState {v['readyState']} (media error {v['error']})"
+        assert v["duration"] == pytest.approx(v["expected"], abs=0.1), v
+    assert len(state["svgs"]) == n_svgs
+    for s in state["svgs"]:
+        assert s["children"] > 10 and s["width"] > 100 and s["height"] > 50, s
+
+
+@pytest.mark.slow
+def test_the_report_renders_in_headless_chromium(tmp_path):
+    """A page from fixture data (a real 2 s H.264 clip): plays, plots render, no console errors."""
+    pfile, tree = write_fixture_project(tmp_path)
+    page = report.write_report(report.load_params(pfile), pfile)
+    state = check_in_browser(page, tmp_path / "screenshot.png")
+    print(f"screenshot: {tmp_path / 'screenshot.png'}")
+    assert_page_renders(state, n_videos=1, n_svgs=3)
+    assert state["videos"][0]["duration"] == pytest.approx(2.0, abs=0.1)
+    assert (tmp_path / "screenshot.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_the_project_report_renders_in_headless_chromium(tmp_path):
+    """The page `dvc repro` wrote (skipped when the pipeline has not run here)."""
+    page = ROOT / yaml.safe_load((ROOT / "params.yaml").read_text())["report"]["out"] / "index.html"
+    if not page.is_file():
+        pytest.skip(f"{page} not generated (dvc repro report)")
+    n_videos = page.read_text().count("<video")
+    state = check_in_browser(page, tmp_path / "screenshot.png")
+    print(f"screenshot: {tmp_path / 'screenshot.png'}")
+    assert n_videos >= 1
+    assert_page_renders(state, n_videos=n_videos, n_svgs=page.read_text().count("<svg"))
