@@ -4,7 +4,9 @@ A stage reruns when one of its declared deps changes, so its deps must name ever
 its command executes. Hand-kept lists drift; this module reads the imports instead: starting
 from the module a stage's ``cmd`` runs (``python -m stages.x.y``), it follows every ``import``
 and ``from … import`` statement (function-level ones included) that reaches a project module,
-transitively, and lists those files (package ``__init__.py`` files included: Python runs them).
+transitively, and lists those files (package ``__init__.py`` files included: Python runs them). A module that
+runs other project modules as subprocesses names them in a module-level ``SUBPROCESS_MODULES``
+tuple; their closures are deps too.
 
     lipsynth dvc-deps            # print the stages whose code deps differ from dvc.yaml
     lipsynth dvc-deps --write    # rewrite the code deps in dvc.yaml (data deps are kept)
@@ -66,6 +68,16 @@ def imported_modules(path: Path, module: str) -> set[str]:
     return out
 
 
+def subprocess_modules(path: Path) -> set[str]:
+    """Modules ``path`` runs as ``python -m …`` (its module-level ``SUBPROCESS_MODULES`` tuple)."""
+    out: set[str] = set()
+    for node in ast.parse(path.read_text(), str(path)).body:
+        if (isinstance(node, ast.Assign) and isinstance(node.value, (ast.Tuple, ast.List))
+                and any(isinstance(t, ast.Name) and t.id == "SUBPROCESS_MODULES" for t in node.targets)):
+            out.update(e.value for e in node.value.elts if isinstance(e, ast.Constant) and isinstance(e.value, str))
+    return out
+
+
 def module_closure(entry: str, root: Path = ROOT) -> dict[str, Path]:
     """All project modules ``entry`` loads, directly or not → their files."""
     seen: dict[str, Path] = {}
@@ -78,7 +90,8 @@ def module_closure(entry: str, root: Path = ROOT) -> dict[str, Path]:
         if f is None:
             continue
         seen[m] = f
-        todo.extend(imported_modules(f, m) - seen.keys())
+        run = {".".join(s.split(".")[:i]) for s in subprocess_modules(f) for i in range(1, s.count(".") + 2)}
+        todo.extend((imported_modules(f, m) | run) - seen.keys())
     return seen
 
 

@@ -78,3 +78,21 @@ def test_layer_check_catches_a_stage_importing_another_stage_and_pipeline_import
     assert any(b.startswith("pipeline/a.py: imports stages.y") for b in bad), bad
     assert any(b.startswith("stages/x/run.py: imports stages.y") for b in bad), bad
     assert not any("stages.x.own" in b for b in bad), bad
+
+
+def test_modules_run_as_subprocesses_are_deps_but_not_imports(tmp_path):
+    make_project(tmp_path, {
+        "pipeline/__init__.py": "",
+        "pipeline/a.py": "",
+        "stages/__init__.py": "",
+        "stages/x/__init__.py": "",
+        "stages/x/run.py": "SUBPROCESS_MODULES = ('stages.y.main',)\nNOT_THIS = ('stages.z.other',)\n",
+        "stages/y/__init__.py": "",
+        "stages/y/main.py": "from pipeline import a\n",
+        "stages/z/__init__.py": "",
+        "stages/z/other.py": "",
+    })
+    deps = dvc_deps.code_deps("python -m stages.x.run", tmp_path)
+    assert deps == ["pipeline/__init__.py", "pipeline/a.py", "stages/__init__.py", "stages/x/__init__.py",
+                    "stages/x/run.py", "stages/y/__init__.py", "stages/y/main.py"]
+    assert dvc_deps.layer_violations(tmp_path) == []         # running a stage is not importing it

@@ -65,6 +65,10 @@ def clip_params(params: Params, video: dict, work: Path, exclude_target: bool, d
     return tree
 
 
+# the stages run as subprocesses (a stage imports no other stage); `lipsynth dvc-deps` reads this
+SUBPROCESS_MODULES = ("stages.synthesize.synthesize", "stages.composite.composite")
+
+
 def run_stage_subprocess(module: str, params_file: Path) -> None:
     """``python -m <module> --params <file>`` from the project root; a failure stops with its last line."""
     r = subprocess.run([sys.executable, "-m", module, "--params", str(params_file)], capture_output=True, text=True)
@@ -154,8 +158,8 @@ def run(params: Params) -> dict:
                 pfile = work / "params.yaml"
                 pfile.write_text(yaml.safe_dump(clip_params(params, v, work, e.exclude_target_from_pool, e.diagnostic),
                                                 sort_keys=False, allow_unicode=True))
-                run_stage_subprocess("stages.synthesize.synthesize", pfile)
-                run_stage_subprocess("stages.composite.composite", pfile)
+                for module in SUBPROCESS_MODULES:
+                    run_stage_subprocess(module, pfile)
                 t1 = time.perf_counter()
                 comp = json.loads((logs / "composite.timing.json").read_text())
                 os.replace(work / "composite" / "result.mp4", tmp / f"{v['name']}.mp4")

@@ -34,7 +34,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from pipeline.params import Params, load_params
+from pipeline.params import Params, as_dict, load_params
 from pipeline.runner import run_main, setup_logging
 from pipeline.store import atomic_output
 
@@ -291,9 +291,20 @@ def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[d
                loss_rows=read_csv(root / params.train.plots), sweep_rows=read_csv(root / params.delay_sweep.plots),
                paper_delay_ms=params.report.paper_delay_ms, evaluate=ev, clips=clips,
                timings={n: read_json(root / "logs" / f"{n}.timing.json") for n in TIMING_LOGS},
-               params_text=Path(params_file).read_text(), commit=git_commit(root),
+               params_text=shown_params(params), commit=git_commit(root),
                date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"))
     return ctx, copies
+
+
+SHOWN_SECTIONS = ("synthetic_speaker", "data", "ingest", "landmarks", "frontalize", "pca", "train", "delay_sweep",
+                  "synthesize", "composite", "speak", "evaluate", "report")     # all but `cluster` (no effect on results)
+
+
+def shown_params(params: Params) -> str:
+    """The params that produced the page, as YAML (the sections the stage declares in dvc.yaml)."""
+    import yaml
+    tree = as_dict(params)
+    return yaml.safe_dump({k: tree[k] for k in SHOWN_SECTIONS if k in tree}, sort_keys=False, allow_unicode=True)
 
 
 def write_report(params: Params, params_file: Path) -> Path:
