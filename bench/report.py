@@ -8,7 +8,9 @@ ingest → landmarks → frontalize → pca → train → delay_sweep with ``--p
 ``bench/synthesis_quality.py`` on ``--clips`` validation clips (candidates from other videos
 only, then with the target's own frames), and copies into ``reports/<name>/``:
 train_metrics.json, train_loss.csv, delay_sweep.csv, synthesis_quality.json,
-synthesis_quality_target_in_pool.json. Run from the project root.
+synthesis_quality_target_in_pool.json, synthesis_quality_speak.json (``lipsynth speak`` on the
+validation clips' files), then the ``evaluate`` and ``report`` stages and index.html + videos/
+(the HTML page). Run from the project root.
 """
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ from pipeline.params import as_dict, parse  # noqa: E402
 STAGES = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
           ("frontalize", "stages.frontalize.frontalize"), ("pca", "stages.pca.pca"), ("train", "stages.train.train"),
           ("delay_sweep", "stages.train.sweep")]
+PAGE = [("evaluate", "stages.evaluate.evaluate"), ("report", "stages.report.report")]   # after the benches
 
 
 def merged(config: Path) -> dict:
@@ -41,6 +44,16 @@ def merged(config: Path) -> dict:
 
 def output_of(params: dict, stage: str) -> Path:
     return Path(params["delay_sweep"]["plots"] if stage == "delay_sweep" else params[stage]["out"])
+
+
+def run_stage(stage: str, module: str, params: dict, params_file: Path, skip_existing: bool) -> None:
+    if skip_existing and output_of(params, stage).exists():
+        print(f"== {stage}: {output_of(params, stage)} exists, skipped", flush=True)
+        return
+    t0 = time.perf_counter()
+    print(f"== {stage}", flush=True)
+    subprocess.run([sys.executable, "-m", module, "--params", str(params_file)], cwd=ROOT, check=True)
+    print(f"== {stage}: {time.perf_counter() - t0:.0f} s", flush=True)
 
 
 def main() -> None:
@@ -60,24 +73,29 @@ def main() -> None:
     for stage, module in STAGES:
         if stage == "delay_sweep" and a.no_sweep:
             continue
-        if a.skip_existing and output_of(params, stage).exists():
-            print(f"== {stage}: {output_of(params, stage)} exists, skipped", flush=True)
-            continue
-        t0 = time.perf_counter()
-        print(f"== {stage}", flush=True)
-        subprocess.run([sys.executable, "-m", module, "--params", str(params_file)], cwd=ROOT, check=True)
-        print(f"== {stage}: {time.perf_counter() - t0:.0f} s", flush=True)
+        run_stage(stage, module, params, params_file, a.skip_existing)
     shutil.copy(params["train"]["metrics"], report / "train_metrics.json")
     shutil.copy(params["train"]["plots"], report / "train_loss.csv")
     if not a.no_sweep:
         shutil.copy(params["delay_sweep"]["plots"], report / "delay_sweep.csv")
-    for flag, out in (("--exclude-target", "synthesis_quality.json"), (None, "synthesis_quality_target_in_pool.json")):
-        work = run_dir / ("quality" if flag else "quality_in_pool")
-        cmd = [sys.executable, str(ROOT / "bench" / "synthesis_quality.py"), "--params", str(params_file),
-               "--clips", str(a.clips), "--out", str(work)] + ([flag] if flag else [])
-        subprocess.run(cmd, cwd=ROOT, check=True)
+    for flags, name, out in ((["--exclude-target"], "quality", "synthesis_quality.json"),
+                             ([], "quality_in_pool", "synthesis_quality_target_in_pool.json"),
+                             (["--path", "speak"], "quality_speak", "synthesis_quality_speak.json")):
+        work = run_dir / name
+        if a.skip_existing and (work / "quality.json").exists():
+            print(f"== {name}: exists, skipped", flush=True)
+        else:
+            cmd = [sys.executable, str(ROOT / "bench" / "synthesis_quality.py"), "--params", str(params_file),
+                   "--clips", str(a.clips), "--out", str(work)] + flags
+            subprocess.run(cmd, cwd=ROOT, check=True)
         shutil.copy(work / "quality.json", report / out)
-    print(f"report written to {report}")
+    for stage, module in PAGE:                          # the HTML page (evaluate → report), copied in
+        run_stage(stage, module, params, params_file, a.skip_existing)
+    page = Path(params["report"]["out"])
+    shutil.copy(page / "index.html", report / "index.html")
+    shutil.rmtree(report / "videos", ignore_errors=True)
+    shutil.copytree(page / "videos", report / "videos")
+    print(f"report written to {report} (open {report / 'index.html'})")
 
 
 if __name__ == "__main__":
