@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     setup_logging(a.verbose)
 
     def go():
-        result = predict_mouth(load_audio(a.audio), a.model, a.fps, a.chunk_seconds, a.device)
+        result = predict_mouth(load_audio(a.audio), a.model, a.fps, a.chunk_seconds, a.device, source=a.audio)
         out = Path(a.out or Path(a.audio).with_suffix(".mouth.npz"))
         tmp = out.with_name(out.name + ".tmp.npz")
         np.savez(tmp, **{k: v for k, v in result.items() if k != "coeffs_100hz"})

@@ -7,7 +7,7 @@ synthesize (mouth shapes from the model, re-timing, mouth texture) and composite
 correction, layers, render-back, pyramid blend, H.264 + AAC).
 
 Who is the target? The target's face descriptor (dlib's face-recognition ResNet) is compared
-with the speaker the model folder records (``stages/train/speaker``):
+with the speaker the model folder records (``pipeline/speaker_bank``):
 
 * the model's speaker: the target is frontalized with the corpus 3D face model (pose alone per
   frame), the predicted mouth shapes are used as they are (one PCA frame), and candidates come
@@ -41,7 +41,7 @@ from pipeline import identity
 from pipeline.errors import BadInputError, ParameterError
 from pipeline.face import IOD_MM, LIP_POINTS, interocular
 from pipeline.geometry import rotation, rotation_angle_deg
-from pipeline.model_folder import load_model, load_speaker
+from pipeline.model_folder import check_model, load_speaker
 from pipeline.mouth_prediction import load_audio
 from pipeline.store import open_group
 from pipeline.params import Params, load_params
@@ -141,7 +141,7 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     model = model or params.synthesize.model
     load_audio(audio)                          # a bad audio file fails now, not after preprocessing,
     probe_video(str(target), params.ingest, require_audio=False)     # so does a target failing header checks
-    load_model(model)                          # and a bad model folder
+    check_model(model)                         # and a bad model folder (any family)
     cache = cache or default_cache()
     p = landmarked_target(Path(target), params, cache)
     speaker, report = choose_speaker(p, model, target)

@@ -1,6 +1,6 @@
 """Who is in a video: dlib's face-recognition ResNet descriptors (128-D) of sampled frames.
 
-A model folder records its speaker's descriptor (``stages/train/speaker``); ``lipsynth speak``
+A model folder records its speaker's descriptor (``pipeline/speaker_bank``); ``lipsynth speak``
 computes the target's and compares: two faces of one person are usually less than 0.6 apart
 (dlib's threshold on LFW; Euclidean distance of unit-scale descriptors), two people more.
 

@@ -1,9 +1,14 @@
 """The model folder: everything synthesis needs, and loud failure when pieces do not match.
 
-    models/<model>/
+    models/lstm/ (paper 000)
         weights.pt        torch state_dict
         config.json       model family, delay, sizes, params, PCA fingerprint
         arrays.npz        feature_mean (28,), feature_std (28,), pca_mean (36,), pca_components (k, 36)
+    models/brand/ (paper 002, ``pipeline.voice_puppet``)
+        config.json       family, model rate, voice features, decode, PCA fingerprint
+        arrays.npz        the puppet's arrays (HMM, face and voice Gaussians, PCA bases)
+
+Both may also hold their speaker (speaker.npz, bank.zarr; ``pipeline/speaker_bank``).
 """
 from __future__ import annotations
 
@@ -16,6 +21,7 @@ from pipeline.errors import LipsynthError
 from pipeline.mouth_pca import fingerprint
 
 FILES = ("weights.pt", "config.json", "arrays.npz")
+FAMILY_FILES = {"lstm": FILES, "brand": ("config.json", "arrays.npz")}
 
 
 class ModelError(LipsynthError):
@@ -34,6 +40,71 @@ def save_model(folder, model, config: dict, feature_mean, feature_std, basis: di
              pca_mean=basis["mean"], pca_components=basis["components"])
 
 
+def read_config(folder) -> dict:
+    """config.json of a model folder of any family, checked for the family's files."""
+    folder = Path(folder)
+    if not (folder / "config.json").is_file():
+        raise ModelError(f"{folder}: not a lipsynth model folder (no config.json) — run `dvc repro`")
+    config = json.loads((folder / "config.json").read_text())
+    family = config.get("model")
+    if family not in FAMILY_FILES:
+        raise ModelError(f"{folder}: unknown model family {family!r} (known: {', '.join(FAMILY_FILES)})")
+    missing = [f for f in FAMILY_FILES[family] if not (folder / f).exists()]
+    if missing:
+        raise ModelError(f"{folder}: incomplete {family} model folder (missing {', '.join(missing)})")
+    return config
+
+
+def check_model(folder) -> dict:
+    """Load whatever family the folder holds (raises ModelError on any inconsistency); its config."""
+    config = read_config(folder)
+    if config["model"] == "brand":
+        load_puppet(folder)
+    else:
+        load_model(folder)
+    return config
+
+
+def save_puppet(folder, puppet: dict) -> None:
+    """Write a Voice Puppetry model (``pipeline.voice_puppet``) into ``folder``."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    basis = dict(mean=puppet["pca_mean"], components=puppet["pca_components"])
+    config = dict(puppet["config"], pca_fingerprint=fingerprint(basis))
+    (folder / "config.json").write_text(json.dumps(config, indent=2))
+    np.savez(folder / "arrays.npz", **{k: np.asarray(v) for k, v in puppet.items() if k not in ("config", "gauss")})
+
+
+PUPPET_ARRAYS = ("startprob", "transmat", "face_means", "face_covars", "vocal_means", "vocal_covars", "vocal_mean",
+                 "vocal_std", "face_pca_mean", "face_pca_components", "lip_index", "pca_mean", "pca_components")
+
+
+def load_puppet(folder, expect_fingerprint: str | None = None) -> dict:
+    """A Voice Puppetry model folder → puppet dict. Raises ModelError on any inconsistency."""
+    folder = Path(folder)
+    config = read_config(folder)
+    if config["model"] != "brand":
+        raise ModelError(f"{folder}: a {config['model']} model, not a Voice Puppetry (brand) model")
+    with np.load(folder / "arrays.npz") as z:
+        missing = [k for k in PUPPET_ARRAYS if k not in z.files]
+        if missing:
+            raise ModelError(f"{folder}: arrays.npz lacks {', '.join(missing)}")
+        puppet = {k: z[k] for k in PUPPET_ARRAYS}
+    puppet["config"] = config
+    basis = dict(mean=puppet["pca_mean"], components=puppet["pca_components"])
+    if fingerprint(basis) != config.get("pca_fingerprint"):
+        raise ModelError(f"{folder}: PCA basis in arrays.npz does not match config.json (mixed files from two runs?)")
+    if expect_fingerprint is not None and expect_fingerprint != config["pca_fingerprint"]:
+        raise ModelError(f"{folder}: trained on PCA basis {config['pca_fingerprint']}, but the store uses "
+                         f"{expect_fingerprint} — retrain (dvc repro) instead of mixing models and data")
+    K, d2 = puppet["face_means"].shape
+    A = puppet["vocal_means"].shape[1]
+    if (puppet["transmat"].shape != (K, K) or puppet["face_covars"].shape != (K, d2, d2)
+            or puppet["vocal_covars"].shape != (K, A, A) or puppet["face_pca_components"].shape[0] != d2 // 2):
+        raise ModelError(f"{folder}: arrays.npz shapes do not agree ({K} states, {d2} face dims, {A} voice dims)")
+    return puppet
+
+
 def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
     """Load a model folder → (model, config, arrays). Raises ModelError on any inconsistency."""
     import torch
@@ -42,7 +113,9 @@ def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
     missing = [f for f in FILES if not (folder / f).exists()]
     if missing:
         raise ModelError(f"{folder}: not a lipsynth model folder (missing {', '.join(missing)}) — run `dvc repro train`")
-    config = json.loads((folder / "config.json").read_text())
+    config = read_config(folder)
+    if config["model"] != "lstm":
+        raise ModelError(f"{folder}: a {config['model']} model folder, not an LSTM one")
     arrays = dict(np.load(folder / "arrays.npz"))
     basis = dict(mean=arrays["pca_mean"], components=arrays["pca_components"])
     if fingerprint(basis) != config.get("pca_fingerprint"):
@@ -50,8 +123,6 @@ def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
     if expect_fingerprint is not None and expect_fingerprint != config["pca_fingerprint"]:
         raise ModelError(f"{folder}: trained on PCA basis {config['pca_fingerprint']}, but the store uses "
                          f"{expect_fingerprint} — retrain (dvc repro) instead of mixing models and data")
-    if config.get("model") != "lstm":
-        raise ModelError(f"{folder}: unknown model family {config.get('model')!r}")
     k = arrays["pca_components"].shape[0]
     if config["n_components"] != k or arrays["feature_mean"].shape != (config["n_features"],):
         raise ModelError(f"{folder}: config sizes ({config['n_features']} features, {config['n_components']} "
@@ -68,7 +139,7 @@ def load_speaker(folder) -> dict | None:
     """The speaker a model folder was trained on, or None for a folder without one.
 
     Returns dict(shape3d (68, 3) mm, identity (128,), identity_spread (F,), bank: the path of the
-    candidate bank zarr (None when the folder has no bank)). See ``stages/train/speaker``.
+    candidate bank zarr (None when the folder has no bank)). See ``pipeline/speaker_bank``.
     """
     folder = Path(folder)
     if not (folder / "speaker.npz").is_file():

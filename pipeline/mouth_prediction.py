@@ -1,7 +1,9 @@
 """Mouth shapes for new audio from a trained model folder: the interface every model family answers.
 
 ``predict_mouth(load_audio(path), model_dir, fps)`` is what ``synthesize``, ``lipsynth speak``
-and ``lipsynth predict-mouth`` call. The audio is any file PyAV reads (wav, mp3, m4a, the audio
+and ``lipsynth predict-mouth`` call, whatever family the folder holds: ``lstm`` (below) or
+``brand`` (Voice Puppetry, ``pipeline.voice_puppet``: Viterbi on its own voice features, the
+closed-form trajectory at ``fps``). The audio is any file PyAV reads (wav, mp3, m4a, the audio
 of a video...), any rate and channel count: it is mixed to mono, resampled to 16 kHz, RMS-normalised and turned into the paper's
 28-D MFCC features. The LSTM runs over them (in chunks that carry its state, if asked — the
 result equals one pass) and its 100 Hz output is sampled at the video frame times
@@ -41,12 +43,19 @@ def to_frames(c100: np.ndarray, frame_time: np.ndarray, rate: float = 100.0) -> 
 
 
 def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: float | None = None,
-                  device: str = "auto") -> dict:
+                  device: str = "auto", source: str = "audio") -> dict:
     """Mouth shapes at ``fps`` for 16 kHz mono ``samples`` (see module doc for the output keys)."""
     from pipeline.delayed_lstm import pick_device, predict_sequence
-    from pipeline.model_folder import load_model
+    from pipeline.model_folder import load_model, load_puppet, read_config
     if not 1 <= fps <= 240:
         raise ParameterError(f"--fps {fps}: expected a video frame rate between 1 and 240")
+    if read_config(model_dir)["model"] == "brand":
+        from pipeline import voice_puppet
+        puppet = load_puppet(model_dir)
+        out = voice_puppet.predict(samples, puppet, fps, source=source)
+        cfg = puppet["config"]
+        return dict(out, pca_fingerprint=cfg["pca_fingerprint"], iod_px=cfg.get("iod_px"),
+                    mean_shape=puppet["pca_mean"].reshape(-1, 2).astype(np.float32))
     dev = pick_device(device)
     model, config, arrays = load_model(model_dir, dev)
     x = audio_features.mfcc_features(samples)

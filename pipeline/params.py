@@ -139,6 +139,28 @@ class Train:
 
 
 @dataclass
+class Brand:
+    out: str = "models/brand"
+    metrics: str = "metrics/train_brand.json"
+    plots: str = "plots/train_brand.csv"
+    rate: float = 25.0
+    features: str = "paper"
+    face_dims: int = 12
+    states: int = 26
+    prior_weight: float = 1.0
+    trim: bool = True
+    iterations: int = 60
+    tolerance: float = 1e-4
+    reg: float = 1e-3
+    min_state_frames: float = 25.0
+    decode: str = "viterbi"
+    baseline: bool = True
+    seed: int = 0
+
+    CHOICES = {"features": ("paper", "mfcc"), "decode": ("viterbi", "posterior")}
+
+
+@dataclass
 class DelaySweep:
     delays: list = field(default_factory=lambda: [0, 5, 10, 20, 40])
     epochs: int = 300
@@ -238,6 +260,7 @@ class Params:
     frontalize: Frontalize = field(default_factory=Frontalize)
     pca: Pca = field(default_factory=Pca)
     train: Train = field(default_factory=Train)
+    brand: Brand = field(default_factory=Brand)
     delay_sweep: DelaySweep = field(default_factory=DelaySweep)
     synthesize: Synthesize = field(default_factory=Synthesize)
     composite: Composite = field(default_factory=Composite)

@@ -70,6 +70,30 @@ def test_model_table_has_the_model_and_its_baselines_with_ratios_to_the_mean_sha
     assert report.model_rows(None) == []
 
 
+BRAND = {"states_initial": 26, "face_dims": 12, "face_variance_kept": 0.9, "features": "paper", "rate": 25.0,
+         "training_frames": 1000,
+         "entropic": {"states": 21, "transitions": 300, "transition_perplexity": 2.5, "entropy_rate_nats": 0.12,
+                      "eq7": {"state_sequence": {"train": 0.18, "test": 0.24}, "voice": {"train": 0.25, "test": 0.29}},
+                      "val": {"mouth_error_px": 1.5, "mouth_error_iod_pct": 2.1, "median_opening_corr": 0.73,
+                              "av_within_one_frame": 1.0, "n_clips": 1}},
+         "ml": {"states": 21, "transitions": 420, "transition_perplexity": 2.7, "entropy_rate_nats": 0.15,
+                "eq7": {"state_sequence": {"train": 0.17, "test": 0.23}, "voice": {"train": 0.24, "test": 0.28}},
+                "val": {"mouth_error_px": 1.6, "mouth_error_iod_pct": 2.2, "median_opening_corr": 0.7,
+                        "av_within_one_frame": 1.0, "n_clips": 1}}}
+
+
+def test_brand_rows_sit_beside_the_lstm_with_the_papers_figures():
+    rows = report.brand_rows(BRAND, 2.0)
+    assert [r[0] for r in rows] == ["Voice Puppetry (entropic HMM)", "baseline: maximum-likelihood HMM"]
+    assert rows[0][1:4] == ["1.50", "2.10", "0.75"]
+    paper = report.brand_paper_rows(BRAND)
+    assert "0.180 / 0.240 (paper 0.1255 / 0.1698)" == paper[0][1] and "(paper 0.875)" in paper[1][3]
+    page = report.build_html(dict(fake_ctx(1), brand=BRAND, brand_rows=[
+        {"model": m, "iteration": str(i), "log_posterior": str(-30 + i)} for m in ("entropic", "ml") for i in range(1, 5)]))
+    assert page.count("<svg") == 4 and "Voice Puppetry (paper 002" in page
+    assert report.brand_rows(None, 2.0) == [] and report.brand_paper_rows(None) == []
+
+
 def test_page_has_tables_one_svg_per_plot_relative_videos_and_escapes_text():
     page = report.build_html(fake_ctx(1))
     assert page.count("<svg") == 3                    # loss, sweep, one opening plot
@@ -119,6 +143,7 @@ def write_fixture_project(tmp_path, video_seconds=2.0, fps=25.0):
     from pipeline import media
     tree = as_dict(Params())
     tree["train"].update(metrics=str(tmp_path / "train.json"), plots=str(tmp_path / "loss.csv"))
+    tree["brand"].update(metrics=str(tmp_path / "brand.json"), plots=str(tmp_path / "brand.csv"))
     tree["delay_sweep"]["plots"] = str(tmp_path / "sweep.csv")
     tree["evaluate"].update(out=str(tmp_path / "evaluate"), metrics=str(tmp_path / "evaluate.json"))
     tree["report"]["out"] = str(tmp_path / "report")

@@ -15,7 +15,7 @@ from pipeline.mouth_prediction import frame_count, load_audio, predict_mouth
 from pipeline.params import Train
 from stages.pca.pca import fit_pca, resample_to_100hz
 from stages.train import lstm
-from stages.train.evaluate import lagged_correlation
+from pipeline.mouth_metrics import lagged_correlation
 
 P = Train(hidden=16, layers=1, batch_size=20, bptt=50, lr=0.01, epochs=60)
 

@@ -107,6 +107,56 @@ def model_rows(train: dict | None) -> list[list[str]]:
     return rows
 
 
+def brand_rows(brand: dict | None, mean_px: float) -> list[list[str]]:
+    """Model-family rows of Voice Puppetry (``brand.metrics``): the entropic HMM and the ML baseline."""
+    rows = []
+    for key, name in (("entropic", "Voice Puppetry (entropic HMM)"), ("ml", "baseline: maximum-likelihood HMM")):
+        m = (brand or {}).get(key, {}).get("val")
+        if m:
+            px = num(m.get("mouth_error_px"))
+            rows.append([name, fmt(px), fmt(m.get("mouth_error_iod_pct")), fmt(px / mean_px if mean_px else math.nan),
+                         fmt(m.get("median_opening_corr"), 3), fmt(m.get("av_within_one_frame"), pct=True),
+                         str(m.get("n_clips", "—"))])
+    return rows
+
+
+PAPER_002 = {"entropic": dict(eq7_face=(0.1255, 0.1698), eq7_voice=(0.1731, 0.2115), entropy=0.0315, perplexity=2.08),
+             "ml": dict(entropy=0.875)}
+
+
+def brand_paper_rows(brand: dict | None) -> list[list[str]]:
+    """The paper's §5 measures beside ours: Eq. 7 error train/test from the face's states and from
+    the voice, entropy rate of the decoded state sequence, transition perplexity, states/transitions."""
+    rows = []
+    for key, name in (("entropic", "entropic"), ("ml", "maximum likelihood")):
+        m = (brand or {}).get(key)
+        if not m:
+            continue
+        eq = m.get("eq7", {})
+        paper = PAPER_002.get(key, {})
+        pf, pv = paper.get("eq7_face"), paper.get("eq7_voice")
+        rows.append([name, f"{fmt(eq.get('state_sequence', {}).get('train'), 3)} / "
+                           f"{fmt(eq.get('state_sequence', {}).get('test'), 3)}"
+                           + (f" (paper {pf[0]} / {pf[1]})" if pf else ""),
+                     f"{fmt(eq.get('voice', {}).get('train'), 3)} / {fmt(eq.get('voice', {}).get('test'), 3)}"
+                     + (f" (paper {pv[0]} / {pv[1]})" if pv else ""),
+                     fmt(m.get("entropy_rate_nats"), 3) + (f" (paper {paper['entropy']})" if "entropy" in paper else ""),
+                     fmt(m.get("transition_perplexity"), 2) + (f" (paper {paper['perplexity']})" if "perplexity" in paper else ""),
+                     f"{m.get('states', '—')} / {m.get('transitions', '—')}"])
+    return rows
+
+
+def em_plot(rows: list[dict]) -> str:
+    fig, ax = figure()
+    for model in dict.fromkeys(r["model"] for r in rows):
+        pts = [(num(r["iteration"]), num(r["log_posterior"])) for r in rows if r["model"] == model]
+        ax.plot(*zip(*pts), marker=".", label=model)
+    ax.set_xlabel("EM iteration")
+    ax.set_ylabel("log posterior per frame")
+    ax.legend()
+    return svg(fig, "brand-em")
+
+
 EVAL_COLUMNS = [("mouth error (px)", "mouth_error_px", 2), ("% IOD", "mouth_error_iod_pct", 2),
                 ("static mouth (px)", "static_mouth_error_px", 2), ("error / static", "error_ratio", 2),
                 ("opening corr", "opening_corr", 3), ("best lag (frames)", "opening_best_lag", 0),
@@ -236,6 +286,8 @@ def build_html(ctx: dict) -> str:
              f"<p class=\"meta\" id=\"meta\">commit {e(ctx['commit'])} · generated {e(ctx['date'])}</p>"]
     parts.append("<h2>Audio → mouth shape: model families</h2>")
     rows = model_rows(ctx.get("train"))
+    mean_px = num(((ctx.get("train") or {}).get("baseline_mean_shape") or {}).get("mouth_error_px"))
+    rows[1:1] = brand_rows(ctx.get("brand"), mean_px)
     if rows:
         parts.append("<p>Validation videos (held out by video), lip landmarks predicted from audio against the "
                      "tracked ones.</p>")
@@ -249,6 +301,19 @@ def build_html(ctx: dict) -> str:
     if ctx.get("sweep_rows"):
         parts.append("<h3>Delay sweep (paper Fig. 9a)</h3><div class=\"plot\" id=\"plot-sweep\">"
                      f"{sweep_plot(ctx['sweep_rows'], ctx.get('paper_delay_ms', 200.0))}</div>")
+    if ctx.get("brand"):
+        b = ctx["brand"]
+        parts.append("<h3>Voice Puppetry (paper 002 §5)</h3>"
+                     f"<p>{b.get('states_initial')} initial states, face {b.get('face_dims')} PCA coordinates "
+                     f"({100 * num(b.get('face_variance_kept')):.0f}% of the variance) + velocities, voice features "
+                     f"<code>{e(str(b.get('features')))}</code> at {fmt(b.get('rate'), 1)} Hz; "
+                     f"{b.get('training_frames')} training frames. Eq. 7 error = Σ‖x−y‖² / Σ‖x+y‖² of face points "
+                     "about the mean face per clip, averaged over clips.</p>")
+        parts.append(table(["HMM", "Eq. 7 from face states (train / test)", "Eq. 7 from voice (train / test)",
+                            "entropy rate (nats/frame)", "transition perplexity", "states / transitions"],
+                           brand_paper_rows(b), "brand"))
+        if ctx.get("brand_rows"):
+            parts.append(f"<div class=\"plot\" id=\"plot-brand\">{em_plot(ctx['brand_rows'])}</div>")
     parts.append("<h2>Audio → video: the synthesized video against the original (Video J)</h2>")
     ev = ctx.get("evaluate")
     if ev:
@@ -288,6 +353,7 @@ def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[d
         opening = read_csv(ev_dir / c["opening_csv"]) if c.get("opening_csv") else []
         clips.append((label, c, opening, src, num(c.get("frames")) / num(c.get("fps", 25.0))))
     ctx = dict(title=params.report.title, train=read_json(root / params.train.metrics),
+               brand=read_json(root / params.brand.metrics), brand_rows=read_csv(root / params.brand.plots),
                loss_rows=read_csv(root / params.train.plots), sweep_rows=read_csv(root / params.delay_sweep.plots),
                paper_delay_ms=params.report.paper_delay_ms, evaluate=ev, clips=clips,
                timings={n: read_json(root / "logs" / f"{n}.timing.json") for n in TIMING_LOGS},
@@ -296,7 +362,7 @@ def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[d
     return ctx, copies
 
 
-SHOWN_SECTIONS = ("synthetic_speaker", "data", "ingest", "landmarks", "frontalize", "pca", "train", "delay_sweep",
+SHOWN_SECTIONS = ("synthetic_speaker", "data", "ingest", "landmarks", "frontalize", "pca", "train", "brand", "delay_sweep",
                   "synthesize", "composite", "speak", "evaluate", "report")     # all but `cluster` (no effect on results)
 
 

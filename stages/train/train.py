@@ -24,8 +24,8 @@ from pipeline.errors import LipsynthError, ParameterError
 from pipeline.params import Params, Train, as_dict
 from pipeline.runner import stage_main
 from pipeline.store import atomic_output, open_group
-from stages.train import evaluate
-from stages.train.speaker import export_speaker
+from pipeline import mouth_metrics
+from pipeline.speaker_bank import export_speaker
 from pipeline.model_folder import save_model
 from pipeline.mouth_prediction import to_frames
 
@@ -91,14 +91,14 @@ def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm"):
 
 def score(preds100: list, data: dict, basis: dict, iod_px: float) -> dict:
     frames = [to_frames(c, s["frame_time"]) for c, s in zip(preds100, data["val"])]
-    return evaluate.evaluate_videos(frames, [s["frame_y"] for s in data["val"]], [s["frame_ok"] for s in data["val"]],
+    return mouth_metrics.evaluate_videos(frames, [s["frame_y"] for s in data["val"]], [s["frame_ok"] for s in data["val"]],
                                     [s["fps"] for s in data["val"]], basis, iod_px)
 
 
 def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | None = None,
         frontalize_path: str | None = None) -> dict:
     """Train ``train.model``; the model folder also gets the speaker (identity, 3D model, candidate
-    bank, ``stages/train/speaker``) when the landmarks and frontalize stores are given."""
+    bank, ``pipeline/speaker_bank``) when the landmarks and frontalize stores are given."""
     from pipeline.delayed_lstm import pick_device
     p = params.train
     if p.model not in MODELS:

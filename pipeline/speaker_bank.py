@@ -23,7 +23,7 @@ import numpy as np
 from pipeline import identity as ident
 from pipeline.store import create_group, open_group, take
 
-log = logging.getLogger("lipsynth.train")
+log = logging.getLogger("lipsynth.speaker_bank")
 
 
 def training_frames(fr, lmg) -> tuple[np.ndarray, list[dict]]:
