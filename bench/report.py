@@ -30,7 +30,7 @@ from pipeline.params import as_dict, parse  # noqa: E402
 
 STAGES = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
           ("frontalize", "stages.frontalize.frontalize"), ("pca", "stages.pca.pca"), ("train", "stages.train.train"),
-          ("delay_sweep", "stages.train.sweep")]
+          ("brand", "stages.train_brand.train_brand"), ("delay_sweep", "stages.train.sweep")]
 PAGE = [("evaluate", "stages.evaluate.evaluate"), ("report", "stages.report.report")]   # after the benches
 
 
@@ -76,6 +76,8 @@ def main() -> None:
         run_stage(stage, module, params, params_file, a.skip_existing)
     shutil.copy(params["train"]["metrics"], report / "train_metrics.json")
     shutil.copy(params["train"]["plots"], report / "train_loss.csv")
+    shutil.copy(params["brand"]["metrics"], report / "train_brand_metrics.json")
+    shutil.copy(params["brand"]["plots"], report / "train_brand.csv")
     if not a.no_sweep:
         shutil.copy(params["delay_sweep"]["plots"], report / "delay_sweep.csv")
     for flags, name, out in ((["--exclude-target"], "quality", "synthesis_quality.json"),

@@ -144,7 +144,7 @@ class Brand:
     metrics: str = "metrics/train_brand.json"
     plots: str = "plots/train_brand.csv"
     rate: float = 25.0
-    features: str = "paper"
+    features: str = "mfcc"
     face_dims: int = 12
     states: int = 26
     prior_weight: float = 1.0

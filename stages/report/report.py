@@ -269,7 +269,7 @@ h1{font-size:1.6em}h2{margin-top:1.6em;border-bottom:1px solid #ccc}
 table{border-collapse:collapse;margin:.5em 0;font-size:.9em}
 td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
 td:first-child,th:first-child{text-align:left}tr:last-child td{font-weight:600}
-table.timing tr:last-child td{font-weight:normal}
+table.timing tr:last-child td,table.brand tr:last-child td{font-weight:normal}
 .plot svg{max-width:100%;height:auto}.clip{margin:1em 0;padding:.5em;border:1px solid #eee}
 video{max-width:100%;background:#000}pre{background:#f6f6f6;padding:.8em;overflow:auto;font-size:.8em}
 .meta{color:#666;font-size:.85em}
