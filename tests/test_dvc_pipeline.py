@@ -124,7 +124,8 @@ def test_voice_puppetry_trains_beats_the_mean_shape_and_predicts(project, tmp_pa
     for prior in ("entropic", "ml"):
         assert m[prior]["val"]["mouth_error_px"] < 0.9 * m["baseline_mean_shape"]["mouth_error_px"], m
         assert 2 <= m[prior]["states"] <= 26
-        assert m[prior]["eq7"]["state_sequence"]["train"] < m[prior]["eq7"]["voice"]["train"] < 1.0
+        for source in ("state_sequence", "voice"):          # Eq. 7: 0 = exact, ≈ 1 = unrelated motion
+            assert 0 < m[prior]["eq7"][source]["train"] < 0.5 and 0 < m[prior]["eq7"][source]["test"] < 0.5, m[prior]
     rows = list(csv.DictReader(open(project / "plots" / "train_brand.csv")))
     post = [float(r["log_posterior"]) for r in rows if r["model"] == "entropic"]
     assert post[-1] > post[0]
