@@ -22,6 +22,7 @@ COMMANDS = {
     "composite": ("stages.composite.composite", "synthesized textures into the target video → outputs/…/result.mp4"),
     "dvc-deps": ("lipsynth.dvc_deps", "check (or --write) the code deps of dvc.yaml's stages, derived from their imports"),
     "speak": ("lipsynth.speak", "audio + any video of the speaker → lip-synced MP4 (preprocesses the target)"),
+    "render-mesh": ("lipsynth.render_mesh", "audio → animated 3D lower face of the model's speaker (pyvista, front + 3/4 view) → MP4"),
     "report": ("stages.report.report", "regenerate the HTML report (report.out/index.html), print its path; --open"),
 }
 

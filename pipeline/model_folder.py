@@ -139,12 +139,14 @@ def load_speaker(folder) -> dict | None:
     """The speaker a model folder was trained on, or None for a folder without one.
 
     Returns dict(shape3d (68, 3) mm, identity (128,), identity_spread (F,), bank: the path of the
-    candidate bank zarr (None when the folder has no bank)). See ``pipeline/speaker_bank``.
+    candidate bank zarr (None when the folder has no bank); and, from folders written since the
+    mesh render, surface_depth (H, W), surface_grid (3,), texture_window (4,)). See ``pipeline/speaker_bank``.
     """
     folder = Path(folder)
     if not (folder / "speaker.npz").is_file():
         return None
     with np.load(folder / "speaker.npz") as z:
         out = {k: z[k] for k in ("shape3d", "identity", "identity_spread")}
+        out.update({k: z[k] for k in ("surface_depth", "surface_grid", "texture_window") if k in z.files})
     out["bank"] = folder / "bank.zarr" if (folder / "bank.zarr").is_dir() else None
     return out

@@ -1,6 +1,8 @@
 """What a model folder carries about its speaker, so ``lipsynth speak`` needs no corpus store.
 
     models/<model>/speaker.npz   shape3d (68, 3) mm — the corpus 3D face model (frontalize),
+                                 surface_depth (H, W) mm, surface_grid [x0, y0, step] mm — its extended
+                                 surface f*, texture_window [x0, y0, mm_per_px, size] (the mesh render),
                                  identity (128,) — median dlib face descriptor of training frames,
                                  identity_spread (F,) — each sampled frame's distance to it
     models/<model>/bank.zarr     the candidate bank: ``train.bank_frames`` training frames spread
@@ -56,7 +58,11 @@ def export_speaker(folder, ingest_path: str, landmarks_path: str, frontalize_pat
                       for i, lm in zip(pick, lms)])
     who = ident.identity(descs)
     spread = np.linalg.norm(descs - who, axis=1)
+    tw, grid = fr.attrs["texture_window"], fr.attrs["grid"]
     np.savez(Path(folder) / "speaker.npz", shape3d=np.asarray(fr["model/shape3d"][...], np.float32),
+             surface_depth=np.asarray(fr["model/depth"][...], np.float32),
+             surface_grid=np.array([grid["x0"], grid["y0"], grid["step"]], np.float64),
+             texture_window=np.array([tw["x0"], tw["y0"], tw["mm_per_px"], tw["size"]], np.float64),
              identity=who, identity_spread=spread.astype(np.float32))
     # the candidate bank
     bank = spread_evenly(idx, bank_frames)

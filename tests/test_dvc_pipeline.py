@@ -150,6 +150,24 @@ def test_voice_puppetry_trains_beats_the_mean_shape_and_predicts(project, tmp_pa
 
 
 @pytest.mark.slow
+def test_render_mesh_cli_writes_an_mp4_with_audio(project, tmp_path):
+    import av
+    clip = project / "data" / "synthetic_speaker" / "speaker_01.mp4"
+    out = tmp_path / "mesh.mp4"
+    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "render-mesh", str(clip), "--model",
+                        str(project / "models" / "brand"), "--out", str(out), "--size", "160"],
+                       cwd=project, capture_output=True, text=True, timeout=600, env=dict(os.environ, OFF_SCREEN="True"))
+    assert r.returncode == 0, r.stderr
+    with av.open(str(out)) as c:
+        kinds = sorted(s.type for s in c.streams)
+        frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    assert kinds == ["audio", "video"] and len(frames) == 250 and frames[0].shape[:2] == (160, 320)
+    # the mouth region changes over the clip (the lips move), the border does not
+    stack = np.stack([f.astype(float) for f in frames])
+    assert stack[:, 60:120, 40:120].std(0).mean() > 2 * stack[:, 140:155, 40:120].std(0).mean()
+
+
+@pytest.mark.slow
 def test_brand_param_reruns_only_train_brand(project):
     params = yaml.safe_load((project / "params.yaml").read_text())
     params["brand"]["decode"] = "posterior"
