@@ -72,3 +72,12 @@ def test_shifted_targets_interpolate_linearly():
     y = np.stack([np.arange(5.0), 10 * np.arange(5.0)], 1)
     out = obj.shifted_targets(y, t, np.array([0.02, 0.1, -1.0, 9.0]))
     assert np.allclose(out, [[0.5, 5.0], [2.5, 25.0], [0.0, 0.0], [4.0, 40.0]])
+
+
+def test_targets_cover_the_lower_face_and_pairs_need_two_valid_frames():
+    from pipeline.face import LIP_POINTS
+    from stages.train_karras.targets import FACE_POINTS, LIP_INDEX, training_pairs
+    assert len(FACE_POINTS) == 42 and [FACE_POINTS[i] for i in LIP_INDEX] == LIP_POINTS
+    assert 8 in FACE_POINTS and 30 in FACE_POINTS          # chin and nose tip move with the face
+    videos = [dict(ok=np.array([True, True, False, True, True, True])), dict(ok=np.array([True, False]))]
+    assert training_pairs(videos).tolist() == [[0, 0], [0, 3], [0, 4]]
