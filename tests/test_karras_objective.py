@@ -81,3 +81,34 @@ def test_targets_cover_the_lower_face_and_pairs_need_two_valid_frames():
     assert 8 in FACE_POINTS and 30 in FACE_POINTS          # chin and nose tip move with the face
     videos = [dict(ok=np.array([True, True, False, True, True, True])), dict(ok=np.array([True, False]))]
     assert training_pairs(videos).tolist() == [[0, 0], [0, 3], [0, 4]]
+
+
+@pytest.mark.slow
+def test_fit_learns_a_mapping_from_audio_to_targets():
+    """The whole §4 loop (features, pairs, shifts, noise, normalised loss, schedule) learns to tell a
+    tone from the noise floor well enough to predict it on a fresh clip (~1 min on 2 cores)."""
+    from stages.train_karras.fit import FitConfig, batch_inputs, fit
+    rng = np.random.default_rng(0)
+    fps, sr = 25.0, 16000
+
+    def clip(seed, split):
+        r = np.random.default_rng(seed)
+        on = np.repeat(np.resize(r.permutation([0, 1]), 4), int(0.8 * sr))   # 3.2 s: alternating 0.8 s of tone / noise floor
+        t = np.arange(len(on)) / sr
+        audio = on * np.sin(2 * np.pi * 220 * t) + 0.01 * r.standard_normal(len(on))
+        ft = np.arange(int(len(on) / sr * fps)) / fps
+        level = np.interp(ft, t, on.astype(float))
+        return dict(name=f"c{seed}", split=split, samples=audio, frame_time=ft, ok=np.ones(len(ft), bool),
+                    targets=np.stack([level, 1 - level, 0.5 * level], 1).astype(np.float32))
+
+    videos = [clip(s, "train") for s in range(2)]
+    net, emo, hist = fit(videos, FitConfig(epochs=40, batch=20, seed=0, emotions=False), progress=False)
+    assert emo.shape == (sum(len(v["targets"]) for v in videos), 16)
+    assert hist[-1]["position"] < 0.01 * hist[0]["position"], hist
+    # the trained network tells tone from noise on a fresh clip
+    test = clip(9, "val")
+    rows = np.column_stack([np.zeros(len(test["targets"]), int), np.arange(len(test["targets"]))])
+    x, y = batch_inputs([test], rows, np.zeros(len(rows)))
+    with torch.no_grad():
+        out = net(torch.as_tensor(x), torch.zeros(len(rows), 16)).numpy()
+    assert np.corrcoef(out[:, 0], y[:, 0])[0, 1] > 0.8

@@ -1,0 +1,101 @@
+"""Training loop of Karras et al. 2017 (paper 001 §4): temporal pairs, a learned emotion per
+training frame, on-the-fly autocorrelation windows with time-shift augmentation, the
+self-normalising three-term loss, and the paper's Adam schedule.
+
+``fit(videos, config)`` takes per-video dicts (``targets.load_targets``: samples, frame_time,
+targets (T, D), ok, split) and returns the trained network, the emotion database and the history.
+Everything random draws from ``config.seed``.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from pipeline.karras_network import KarrasNetwork
+from pipeline.speech_autocorrelation import autocorrelation_features
+from stages.train_karras import objective
+from stages.train_karras.targets import training_pairs
+
+log = logging.getLogger("lipsynth.train_karras")
+
+
+@dataclass
+class FitConfig:
+    epochs: int = 500
+    batch: int = 100                # 50 temporal pairs (§4.5)
+    lr: float = 1e-3
+    emotion_dim: int = 16
+    emotion_sigma: float = 0.01
+    motion: bool = True             # ablations: the motion term, the emotion database, time shifts
+    emotions: bool = True
+    time_shift: bool = True
+    seed: int = 0
+    device: str = "cpu"
+
+
+def target_pca(y: np.ndarray, k: int = 150) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (D,) and up to ``k`` principal components (k', D) of the training targets (§3.1)."""
+    mean = y.mean(0)
+    _, _, vt = np.linalg.svd(y - mean, full_matrices=False)
+    return mean, vt[:k]
+
+
+def batch_inputs(videos, rows: np.ndarray, shifts: np.ndarray):
+    """Autocorrelation windows (B, 1, 64, 32) and shifted targets (B, D) for (video, frame) rows."""
+    x, y = [], []
+    for (vi, fi), s in zip(rows, shifts):
+        v = videos[vi]
+        t = v["frame_time"][fi] + s
+        x.append(autocorrelation_features(v["samples"], np.array([t]), v.get("name", "audio"))[0])
+        y.append(objective.shifted_targets(v["targets"], v["frame_time"], np.array([t]))[0])
+    return np.stack(x)[:, None], np.stack(y)
+
+
+def fit(videos: list[dict], config: FitConfig, progress: bool = True):
+    """Train on the ``train`` videos; returns (network, emotions (N, E) per training pair start, history)."""
+    rng = np.random.default_rng(config.seed)
+    torch.manual_seed(config.seed)
+    train = [v for v in videos if v["split"] == "train"]
+    pairs = training_pairs(train)
+    if len(pairs) < config.batch // 2:
+        raise ValueError(f"{len(pairs)} training pairs are fewer than one minibatch ({config.batch // 2})")
+    ys = np.concatenate([v["targets"][v["ok"]] for v in train])
+    mean, comps = target_pca(ys)
+    net = KarrasNetwork(ys.shape[1], config.emotion_dim).to(config.device)
+    net.init_output_from_pca(mean, comps)
+    # one emotion vector per training frame: index = (video, frame) flattened
+    offsets = np.cumsum([0] + [len(v["targets"]) for v in train])
+    emotions = torch.nn.Parameter(config.emotion_sigma * torch.randn(int(offsets[-1]), config.emotion_dim))
+    opt = torch.optim.Adam(list(net.parameters()) + [emotions], lr=config.lr)
+    loss_fn = objective.KarrasLoss(use_motion=config.motion, use_emotion=config.emotions)
+    per_epoch = max(1, len(pairs) // (config.batch // 2))
+    history = []
+    from tqdm import tqdm
+    bar = tqdm(range(config.epochs), desc="karras", unit="epoch", leave=False, disable=not progress)
+    for epoch in bar:
+        order = rng.permutation(len(pairs))
+        sums = {}
+        for b in range(per_epoch):
+            lr, beta1 = objective.schedule(epoch + b / per_epoch, config.epochs, config.lr)
+            for g in opt.param_groups:
+                g["lr"], g["betas"] = lr, (beta1, g["betas"][1])
+            p = pairs[order[b * (config.batch // 2):(b + 1) * (config.batch // 2)]]
+            rows = np.repeat(p, 2, 0)
+            rows[1::2, 1] += 1                                      # the pair's second frame
+            shifts = objective.pair_shifts(len(p), rng) if config.time_shift else np.zeros(len(rows))
+            x, y = batch_inputs(train, rows, shifts)
+            idx = torch.as_tensor(offsets[rows[:, 0]] + rows[:, 1])
+            e = emotions[idx] if config.emotions else torch.zeros(len(rows), config.emotion_dim)
+            out = net(torch.as_tensor(x, device=config.device), e.to(config.device), noise=True)
+            loss, parts = loss_fn(torch.as_tensor(y, dtype=torch.float32, device=config.device), out, e)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            for k, v in parts.items():
+                sums[k] = sums.get(k, 0.0) + v / per_epoch
+        history.append(dict(epoch=epoch + 1, **sums))
+        bar.set_postfix(position=f"{sums['position']:.3f}")
+    return net, emotions.detach().cpu().numpy(), history
