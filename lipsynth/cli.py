@@ -16,6 +16,8 @@ COMMANDS = {
     "pca": ("stages.pca.pca", "18 frontal lip points → 20 PCA coefficients per frame and at 100 Hz → store/pca.zarr"),
     "train": ("stages.train.train", "train the audio → mouth-shape model (train.model) → models/<model>"),
     "train-brand": ("stages.train_brand.train_brand", "Voice Puppetry (paper 002): entropic facial HMM remapped onto the voice → models/brand"),
+    "train-karras": ("stages.train_karras.train_karras", "Karras et al. (paper 001): autocorrelation conv net with learned emotions → models/karras"),
+    "emotions": ("lipsynth.emotions", "list the mined emotion vectors of a Karras model (for --emotion K or K1:K2:t)"),
     "delay-sweep": ("stages.train.sweep", "validation loss of the LSTM for several target delays → plots/"),
     "predict-mouth": ("lipsynth.predict_mouth", "per-frame mouth shapes for an audio file from a model folder"),
     "synthesize": ("stages.synthesize.synthesize", "new audio → re-timed lower-face textures → store/synthesize.zarr"),

@@ -4,7 +4,8 @@
 
 AUDIO is any file PyAV reads (wav, mp3, m4a, the audio of a video...), any rate and channel
 count. Output (.npz): coeffs (T, 20) PCA coefficients, lip_points (T, 18, 2) canonical texture
-pixels, frame_time (T,) s, fps, pca_fingerprint — for T = round(duration · fps) frames.
+pixels, frame_time (T,) s, fps, pca_fingerprint — for T = round(duration · fps) frames; Karras
+models also write face_points (T, 42, 2), the whole lower face, and the emotion vector used.
 """
 from __future__ import annotations
 
@@ -30,12 +31,16 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="output .npz (default: AUDIO stem + .mouth.npz)")
     ap.add_argument("--chunk-seconds", type=float, default=None, help="stream the LSTM in chunks of this length")
     ap.add_argument("--device", default="auto")
+    ap.add_argument("--emotion", default=None,
+                    help="Karras models: emotion candidate K, or K1:K2:t (interpolation, t in [0, 1]); "
+                         "default: the model's default (candidate 0). `lipsynth emotions --model DIR` lists them")
     ap.add_argument("-v", "--verbose", action="store_true")
     a = ap.parse_args(argv)
     setup_logging(a.verbose)
 
     def go():
-        result = predict_mouth(load_audio(a.audio), a.model, a.fps, a.chunk_seconds, a.device, source=a.audio)
+        result = predict_mouth(load_audio(a.audio), a.model, a.fps, a.chunk_seconds, a.device, source=a.audio,
+                               emotion=a.emotion)
         out = Path(a.out or Path(a.audio).with_suffix(".mouth.npz"))
         tmp = out.with_name(out.name + ".tmp.npz")
         np.savez(tmp, **{k: v for k, v in result.items() if k != "coeffs_100hz"})

@@ -42,7 +42,7 @@ from pipeline.errors import BadInputError, ParameterError
 from pipeline.face import IOD_MM, LIP_POINTS, interocular
 from pipeline.geometry import rotation, rotation_angle_deg
 from pipeline.model_folder import check_model, load_speaker
-from pipeline.mouth_prediction import load_audio
+from pipeline.mouth_prediction import check_emotion, load_audio
 from pipeline.store import open_group
 from pipeline.params import Params, load_params
 from pipeline.runner import run_main, setup_logging
@@ -126,7 +126,7 @@ def choose_speaker(p: Params, model: str, target: str) -> tuple[dict | None, dic
 
 
 def speak(audio: str, target: str, out: str, params: Params, model: str | None = None, retime: bool = True,
-          cache: Path | None = None, diagnostic: bool = False) -> dict:
+          cache: Path | None = None, diagnostic: bool = False, emotion=None) -> dict:
     """Write ``out`` (MP4): the speaker of ``target`` saying ``audio``.
 
     Returns ms/frame per phase and a ``report`` (identity distance, path taken, 3D fit, self-check).
@@ -142,12 +142,14 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     load_audio(audio)                          # a bad audio file fails now, not after preprocessing,
     probe_video(str(target), params.ingest, require_audio=False)     # so does a target failing header checks
     check_model(model)                         # and a bad model folder (any family)
+    check_emotion(model, emotion)              # and an emotion the model cannot take
     cache = cache or default_cache()
     p = landmarked_target(Path(target), params, cache)
     speaker, report = choose_speaker(p, model, target)
     p = preprocess_target(Path(target), params, cache, shape3d=None if speaker is None else speaker["shape3d"])
     report["fit"] = fit_report(p, target)
     p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, model
+    p.synthesize.emotion = emotion
     p.composite.diagnostic = diagnostic
     stores = synthesize.open_stores(p, pca=False)
     window = stores["frontalize"].attrs["texture_window"]
@@ -197,6 +199,9 @@ def main(argv=None) -> int:
                     help="keep the target's timing (paper §3.3 off; for evaluation against ground truth)")
     ap.add_argument("--diagnostic", action="store_true",
                     help="also write OUT.diagnostic.mp4: target | result | synthesized texture")
+    ap.add_argument("--emotion", default=None,
+                    help="Karras models: emotion candidate K, or K1:K2:t to interpolate two (default: the model's "
+                         "default, candidate 0; list them with `lipsynth emotions --model DIR`)")
     ap.add_argument("--params", default=None,
                     help="params file (default: ./params.yaml, else the one installed with lipsynth)")
     ap.add_argument("--cache", type=Path, default=None,
@@ -206,7 +211,7 @@ def main(argv=None) -> int:
     setup_logging(a.verbose)
     params = a.params or ("params.yaml" if Path("params.yaml").is_file() else Path(__file__).parents[1] / "params.yaml")
     return run_main(lambda: speak(a.audio, a.target, a.out, load_params(params), a.model,
-                                  not a.no_retime, a.cache, a.diagnostic))
+                                  not a.no_retime, a.cache, a.diagnostic, a.emotion))
 
 
 if __name__ == "__main__":

@@ -51,15 +51,23 @@ class KarrasNetwork(nn.Module):
         f = NOISE_BASE ** torch.randn((b + 1) // 2, c, 1, 1, device=x.device, dtype=x.dtype)
         return x * f.repeat_interleave(2, 0)[:b]
 
-    def forward(self, x: torch.Tensor, emotion: torch.Tensor, noise: bool = False) -> torch.Tensor:
-        """(B, 1, 64, 32) autocorrelations and (B, E) emotions → (B, n_outputs)."""
+    def formant_features(self, x: torch.Tensor, noise: bool = False) -> torch.Tensor:
+        """Formant analysis network: (B, 1, 64, 32) autocorrelations → (B, 256, 64, 1)."""
         for conv in self.formant:
             x = torch.relu(conv(self._noise(x) if noise else x))
+        return x
+
+    def articulate(self, x: torch.Tensor, emotion: torch.Tensor, noise: bool = False) -> torch.Tensor:
+        """Articulation and output networks: (B, 256, 64, 1) formant features, (B, E) emotions → (B, n_outputs)."""
         e = emotion[:, :, None, None]
         for conv in self.articulation:
             x = torch.relu(conv(self._noise(x) if noise else x))
             x = torch.cat([x, e.expand(-1, -1, x.shape[2], 1)], 1)
         return self.out(self.fc150(x.flatten(1)))
+
+    def forward(self, x: torch.Tensor, emotion: torch.Tensor, noise: bool = False) -> torch.Tensor:
+        """(B, 1, 64, 32) autocorrelations and (B, E) emotions → (B, n_outputs)."""
+        return self.articulate(self.formant_features(x, noise), emotion, noise)
 
     @torch.no_grad()
     def init_output_from_pca(self, mean: np.ndarray, components: np.ndarray) -> None:

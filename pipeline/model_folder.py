@@ -7,6 +7,12 @@
     models/brand/ (paper 002, ``pipeline.voice_puppet``)
         config.json       family, model rate, voice features, decode, PCA fingerprint
         arrays.npz        the puppet's arrays (HMM, face and voice Gaussians, PCA bases)
+    models/karras/ (paper 001, ``pipeline.karras_inference``)
+        weights.pt        KarrasNetwork state_dict
+        config.json       family, outputs, emotion size, face points, default emotion, PCA fingerprint
+        arrays.npz        pca_mean, pca_components (mouth PCA), lip_index (18,), face_mean (P·2,),
+                          emotion_candidates (K, E) mined from the emotion database,
+                          emotion_database (N, E) (one learned vector per training frame)
 
 Both may also hold their speaker (speaker.npz, bank.zarr; ``pipeline/speaker_bank``).
 """
@@ -21,7 +27,7 @@ from pipeline.errors import LipsynthError
 from pipeline.mouth_pca import fingerprint
 
 FILES = ("weights.pt", "config.json", "arrays.npz")
-FAMILY_FILES = {"lstm": FILES, "brand": ("config.json", "arrays.npz")}
+FAMILY_FILES = {"lstm": FILES, "brand": ("config.json", "arrays.npz"), "karras": FILES}
 
 
 class ModelError(LipsynthError):
@@ -60,6 +66,8 @@ def check_model(folder) -> dict:
     config = read_config(folder)
     if config["model"] == "brand":
         load_puppet(folder)
+    elif config["model"] == "karras":
+        load_karras(folder)
     else:
         load_model(folder)
     return config
@@ -103,6 +111,54 @@ def load_puppet(folder, expect_fingerprint: str | None = None) -> dict:
             or puppet["vocal_covars"].shape != (K, A, A) or puppet["face_pca_components"].shape[0] != d2 // 2):
         raise ModelError(f"{folder}: arrays.npz shapes do not agree ({K} states, {d2} face dims, {A} voice dims)")
     return puppet
+
+
+KARRAS_ARRAYS = ("pca_mean", "pca_components", "lip_index", "face_mean", "emotion_candidates", "emotion_database")
+
+
+def save_karras(folder, net, config: dict, arrays: dict) -> None:
+    """Write a Karras et al. model (network weights, config, arrays — see the module doc)."""
+    import torch
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    torch.save(net.state_dict(), folder / "weights.pt")
+    basis = dict(mean=arrays["pca_mean"], components=arrays["pca_components"])
+    config = dict(config, model="karras", pca_fingerprint=fingerprint(basis), format=1)
+    (folder / "config.json").write_text(json.dumps(config, indent=2))
+    np.savez(folder / "arrays.npz", **{k: np.asarray(arrays[k]) for k in KARRAS_ARRAYS})
+
+
+def load_karras(folder, device="cpu", expect_fingerprint: str | None = None) -> dict:
+    """A Karras model folder → dict(net, config, and the arrays). Raises ModelError on any inconsistency."""
+    import torch
+    from pipeline.karras_network import KarrasNetwork
+    folder = Path(folder)
+    config = read_config(folder)
+    if config["model"] != "karras":
+        raise ModelError(f"{folder}: a {config['model']} model, not a Karras et al. (karras) model")
+    with np.load(folder / "arrays.npz") as z:
+        missing = [k for k in KARRAS_ARRAYS if k not in z.files]
+        if missing:
+            raise ModelError(f"{folder}: arrays.npz lacks {', '.join(missing)}")
+        out = {k: z[k] for k in KARRAS_ARRAYS}
+    basis = dict(mean=out["pca_mean"], components=out["pca_components"])
+    if fingerprint(basis) != config.get("pca_fingerprint"):
+        raise ModelError(f"{folder}: PCA basis in arrays.npz does not match config.json (mixed files from two runs?)")
+    if expect_fingerprint is not None and expect_fingerprint != config["pca_fingerprint"]:
+        raise ModelError(f"{folder}: trained on PCA basis {config['pca_fingerprint']}, but the store uses "
+                         f"{expect_fingerprint} — retrain (dvc repro) instead of mixing models and data")
+    n_out, e_dim = config["n_outputs"], config["emotion_dim"]
+    if (out["face_mean"].shape != (n_out,) or out["emotion_candidates"].ndim != 2
+            or out["emotion_candidates"].shape[1] != e_dim or len(out["emotion_candidates"]) == 0
+            or out["lip_index"].max() >= n_out // 2):
+        raise ModelError(f"{folder}: arrays.npz does not fit config.json ({n_out} outputs, emotion size {e_dim})")
+    net = KarrasNetwork(n_out, e_dim)
+    try:
+        net.load_state_dict(torch.load(folder / "weights.pt", map_location=device, weights_only=True))
+    except (RuntimeError, KeyError) as exc:
+        raise ModelError(f"{folder}: weights.pt does not fit config.json ({str(exc).splitlines()[0]})") from None
+    out.update(net=net.to(device).eval(), config=config)
+    return out
 
 
 def load_model(folder, device="cpu", expect_fingerprint: str | None = None):

@@ -3,7 +3,9 @@
 ``predict_mouth(load_audio(path), model_dir, fps)`` is what ``synthesize``, ``lipsynth speak``
 and ``lipsynth predict-mouth`` call, whatever family the folder holds: ``lstm`` (below) or
 ``brand`` (Voice Puppetry, ``pipeline.voice_puppet``: Viterbi on its own voice features, the
-closed-form trajectory at ``fps``). The audio is any file PyAV reads (wav, mp3, m4a, the audio
+closed-form trajectory at ``fps``) or ``karras`` (Karras et al., ``pipeline.karras_inference``:
+autocorrelation windows at the frame times, two inferences 4 ms apart, a constant or interpolated
+emotion vector — ``emotion``; its output also has ``face_points``, the whole lower face). The audio is any file PyAV reads (wav, mp3, m4a, the audio
 of a video...), any rate and channel count: it is mixed to mono, resampled to 16 kHz, RMS-normalised and turned into the paper's
 28-D MFCC features. The LSTM runs over them (in chunks that carry its state, if asked — the
 result equals one pass) and its 100 Hz output is sampled at the video frame times
@@ -42,14 +44,39 @@ def to_frames(c100: np.ndarray, frame_time: np.ndarray, rate: float = 100.0) -> 
     return np.stack([np.interp(frame_time, t, c100[:, j]) for j in range(c100.shape[1])], axis=1)
 
 
+def check_emotion(model_dir, emotion) -> None:
+    """Refuse (ParameterError) an ``--emotion`` the model folder cannot take, before any long work."""
+    from pipeline.model_folder import read_config
+    if emotion is None:
+        return
+    family = read_config(model_dir)["model"]
+    if family != "karras":
+        raise ParameterError(f"--emotion {emotion}: only Karras models take an emotion; {model_dir} is a {family} model")
+    from pipeline.karras_inference import parse_emotion
+    with np.load(f"{model_dir}/arrays.npz") as z:
+        parse_emotion(emotion, z["emotion_candidates"])
+
+
 def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: float | None = None,
-                  device: str = "auto", source: str = "audio") -> dict:
+                  device: str = "auto", source: str = "audio", emotion=None) -> dict:
     """Mouth shapes at ``fps`` for 16 kHz mono ``samples`` (see module doc for the output keys)."""
     from pipeline.delayed_lstm import pick_device, predict_sequence
     from pipeline.model_folder import load_model, load_puppet, read_config
     if not 1 <= fps <= 240:
         raise ParameterError(f"--fps {fps}: expected a video frame rate between 1 and 240")
-    if read_config(model_dir)["model"] == "brand":
+    family = read_config(model_dir)["model"]
+    check_emotion(model_dir, emotion)
+    if family == "karras":
+        from pipeline import karras_inference
+        from pipeline.model_folder import load_karras
+        dev = pick_device(device)
+        model = load_karras(model_dir, dev)
+        out = karras_inference.predict(samples, model, fps, emotion, source=source, device=dev)
+        cfg = model["config"]
+        return dict(out, pca_fingerprint=cfg["pca_fingerprint"], iod_px=cfg.get("iod_px"),
+                    mean_shape=model["pca_mean"].reshape(-1, 2).astype(np.float32),
+                    face_mean=model["face_mean"].reshape(-1, 2).astype(np.float32), face_point_ids=cfg["face_points"])
+    if family == "brand":
         from pipeline import voice_puppet
         puppet = load_puppet(model_dir)
         out = voice_puppet.predict(samples, puppet, fps, source=source)

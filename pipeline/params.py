@@ -161,6 +161,42 @@ class Brand:
 
 
 @dataclass
+class Karras:
+    out: str = "models/karras"
+    metrics: str = "metrics/train_karras.json"
+    plots: str = "plots/train_karras_loss.csv"
+    train_seconds: float | None = None
+    epochs: int = 500
+    batch: int = 100
+    lr: float = 0.001
+    emotion_dim: int = 16
+    emotion_sigma: float = 0.01
+    motion: bool = True
+    emotions: bool = True
+    time_shift: bool = True
+    val_every: int = 5
+    val_frames: int = 2000
+    mine_candidates: int = 2000
+    mine_probes: int = 8
+    mine_playback: int = 64
+    mine_playback_clips: int = 8
+    emotion_clusters: int = 8
+    seed: int = 0
+    device: str = "auto"
+    threads: int | None = None
+
+
+@dataclass
+class RenderMesh:
+    model: str = "models/karras"
+    out: str = "outputs/synthetic_speaker_3d/karras_mesh.mp4"
+    fps: float = 25.0
+    size: int = 360
+    step_mm: float = 2.5
+    emotion: int | str | None = None
+
+
+@dataclass
 class DelaySweep:
     delays: list = field(default_factory=lambda: [0, 5, 10, 20, 40])
     epochs: int = 300
@@ -197,6 +233,7 @@ class Synthesize:
     min_target_fraction: float = 0.5
     threads: int = 2
     device: str = "auto"
+    emotion: int | str | None = None
 
     CHOICES = {"retarget": ("auto", "always", "never")}
 
@@ -261,6 +298,8 @@ class Params:
     pca: Pca = field(default_factory=Pca)
     train: Train = field(default_factory=Train)
     brand: Brand = field(default_factory=Brand)
+    karras: Karras = field(default_factory=Karras)
+    render_mesh: RenderMesh = field(default_factory=RenderMesh)
     delay_sweep: DelaySweep = field(default_factory=DelaySweep)
     synthesize: Synthesize = field(default_factory=Synthesize)
     composite: Composite = field(default_factory=Composite)

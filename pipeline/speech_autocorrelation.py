@@ -42,18 +42,27 @@ def frame_autocorrelation(frames: np.ndarray) -> np.ndarray:
     return np.fft.irfft(np.abs(spec) ** 2, n=2 * FRAME, axis=-1)[..., :LAGS]
 
 
+def padded_track(samples: np.ndarray, source="audio") -> np.ndarray:
+    """The normalised track, zero-padded so any window centred inside it can be cut (float64)."""
+    if len(samples) < 2 * HALF:
+        raise BadInputError(source, f"audio too short for one 520 ms window ({len(samples) / SAMPLE_RATE:.2f} s)")
+    pad = HALF + FRAME
+    return np.pad(normalise_track(samples, source), (pad, pad))
+
+
+def windows(padded: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """(T, 64, 32) float32 windows centred at ``times`` (s) of a ``padded_track``."""
+    centre = np.round(np.asarray(times, np.float64) * SAMPLE_RATE).astype(int)
+    starts = centre[:, None] - HALF + HOP * np.arange(FRAMES)[None, :] + HALF + FRAME   # (T, 64)
+    starts = np.clip(starts, 0, len(padded) - FRAME)
+    frames = padded[starts[..., None] + np.arange(FRAME)]                               # (T, 64, 256)
+    return frame_autocorrelation(frames).astype(np.float32)
+
+
 def autocorrelation_features(samples: np.ndarray, times: np.ndarray, source="audio") -> np.ndarray:
     """(T, 64, 32) float32 windows centred at ``times`` (s) of a 16 kHz track (zero beyond its ends).
 
     The track is normalised first (``normalise_track``); a track shorter than one 520 ms window
     raises BadInputError naming ``source``.
     """
-    if len(samples) < 2 * HALF:
-        raise BadInputError(source, f"audio too short for one 520 ms window ({len(samples) / SAMPLE_RATE:.2f} s)")
-    x = normalise_track(samples, source)
-    centre = np.round(np.asarray(times, np.float64) * SAMPLE_RATE).astype(int)
-    pad = HALF + FRAME
-    xp = np.pad(x, (pad, pad))
-    starts = centre[:, None] - HALF + HOP * np.arange(FRAMES)[None, :] + pad           # (T, 64)
-    frames = xp[starts[..., None] + np.arange(FRAME)]                                   # (T, 64, 256)
-    return frame_autocorrelation(frames).astype(np.float32)
+    return windows(padded_track(samples, source), times)

@@ -49,7 +49,8 @@ def copy_project(proj, overrides: dict):
 @pytest.fixture(scope="module")
 def project(tmp_path_factory):
     """A copy of the project's pipeline with a tiny synthetic corpus, reproduced once."""
-    proj = copy_project(tmp_path_factory.mktemp("dvcproj"), {"delay_sweep": {"delays": [0, 20], "epochs": 100}})
+    proj = copy_project(tmp_path_factory.mktemp("dvcproj"), {"delay_sweep": {"delays": [0, 20], "epochs": 100},
+                                                             "karras": {"epochs": KARRAS_EPOCHS}})
     out = dvc(proj, "repro")
     for stage in STAGES:
         assert f"Running stage '{stage}'" in out
@@ -57,8 +58,9 @@ def project(tmp_path_factory):
     return proj
 
 
-STAGES = ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca", "train", "train_brand", "delay_sweep",
-          "synthesize", "composite")
+STAGES = ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca", "train", "train_brand", "train_karras",
+          "render_mesh", "delay_sweep", "synthesize", "composite")
+KARRAS_EPOCHS = 30          # CI keeps the Karras run short through params (the default is the paper's 500)
 
 
 @pytest.mark.slow
@@ -147,6 +149,61 @@ def test_voice_puppetry_trains_beats_the_mean_shape_and_predicts(project, tmp_pa
     r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "predict-mouth", str(clip), "--model", str(bad),
                         "--out", str(tmp_path / "c.npz")], cwd=project, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "PCA basis" in r.stderr and not (tmp_path / "c.npz").exists()
+
+
+@pytest.mark.slow
+def test_karras_trains_beats_the_mean_shape_and_mines_emotions(project, tmp_path):
+    m = json.loads((project / "metrics" / "train_karras.json").read_text())
+    assert m["epochs"] == KARRAS_EPOCHS and m["emotion_candidates"] >= 1
+    assert m["val"]["mouth_error_px"] < 0.9 * m["baseline_mean_shape"]["mouth_error_px"], m
+    rows = list(csv.DictReader(open(project / "plots" / "train_karras_loss.csv")))
+    assert len(rows) == KARRAS_EPOCHS
+    val = [float(r["val_position"]) for r in rows if r["val_position"]]
+    assert len(val) >= 3 and val[-1] < 0.5 * val[0]                 # the validation curve falls
+    assert float(rows[-1]["position"]) < 0.5 * float(rows[0]["position"])
+    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "emotions", "--model", str(project / "models" / "karras")],
+                       cwd=project, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and "← default" in r.stdout, r.stderr
+    clip = project / "data" / "synthetic_speaker" / "speaker_00.mp4"
+    last = m["emotion_candidates"] - 1
+    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "predict-mouth", str(clip), "--model",
+                        str(project / "models" / "karras"), "--fps", "30", "--emotion", f"0:{last}:0.5",
+                        "--out", str(tmp_path / "k.npz")], cwd=project, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    out = np.load(tmp_path / "k.npz")
+    assert out["face_points"].shape == (300, 42, 2) and out["lip_points"].shape == (300, 18, 2)
+    from pipeline.mouth_metrics import opening
+    assert opening(out["lip_points"]).std() > 0.3
+    jaw = out["face_points"][:, 6, 1]                                # dlib point 8, the chin: the jaw moves too
+    assert jaw.std() > 0.1
+    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "predict-mouth", str(clip), "--model",
+                        str(project / "models" / "karras"), "--emotion", str(last + 1), "--out", str(tmp_path / "x.npz")],
+                       cwd=project, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "does not exist" in r.stderr and not (tmp_path / "x.npz").exists()
+
+
+@pytest.mark.slow
+def test_render_mesh_stage_wrote_the_karras_face(project):
+    import av
+    out = project / load_params(project / "params.yaml").render_mesh.out
+    with av.open(str(out)) as c:
+        kinds = sorted(s.type for s in c.streams)
+        frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    assert kinds == ["audio", "video"] and len(frames) == 250 and frames[0].shape[:2] == (360, 720)
+    stack = np.stack([f[::2, ::2].astype(float) for f in frames])
+    assert stack[:, 60:120, 40:120].std(0).mean() > 2 * stack[:, 140:175, 40:120].std(0).mean()
+
+
+@pytest.mark.slow
+def test_karras_param_reruns_only_karras_stages(project):
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    params["karras"]["val_every"] = 7
+    (project / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    status = json.loads(dvc(project, "status", "--json").strip().splitlines()[-1])
+    assert set(status) == {"train_karras", "render_mesh", "report"}, status
+    params["karras"]["val_every"] = 5
+    (project / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    assert "up to date" in dvc(project, "status")
 
 
 @pytest.mark.slow

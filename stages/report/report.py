@@ -120,6 +120,34 @@ def brand_rows(brand: dict | None, mean_px: float) -> list[list[str]]:
     return rows
 
 
+def karras_rows(karras: dict | None, mean_px: float) -> list[list[str]]:
+    """The Karras et al. row (``karras.metrics``): default emotion, two inferences 4 ms apart."""
+    m = (karras or {}).get("val")
+    if not m:
+        return []
+    px = num(m.get("mouth_error_px"))
+    name = f"Karras et al. ({fmt(num(karras.get('training_seconds')) / 60, 1)} min, {karras.get('epochs')} epochs)"
+    return [[name, fmt(px), fmt(m.get("mouth_error_iod_pct")), fmt(px / mean_px if mean_px else math.nan),
+             fmt(m.get("median_opening_corr"), 3), fmt(m.get("av_within_one_frame"), pct=True),
+             str(m.get("n_clips", "—"))]]
+
+
+def karras_plot(rows: list[dict]) -> str:
+    """Position term per epoch: training (with noise and shifts) and the validation curve."""
+    fig, ax = figure()
+    tr = [(num(r["epoch"]), num(r["position"])) for r in rows if r.get("position")]
+    va = [(num(r["epoch"]), num(r["val_position"])) for r in rows if r.get("val_position")]
+    if tr:
+        ax.plot(*zip(*tr), label="training (position term)")
+    if va:
+        ax.plot(*zip(*va), marker=".", label="validation")
+    ax.set_yscale("log")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("position loss (px² per coordinate)")
+    ax.legend()
+    return svg(fig, "karras-loss")
+
+
 PAPER_002 = {"entropic": dict(eq7_face=(0.1255, 0.1698), eq7_voice=(0.1731, 0.2115), entropy=0.0315, perplexity=2.08),
              "ml": dict(entropy=0.875)}
 
@@ -287,7 +315,7 @@ def build_html(ctx: dict) -> str:
     parts.append("<h2>Audio → mouth shape: model families</h2>")
     rows = model_rows(ctx.get("train"))
     mean_px = num(((ctx.get("train") or {}).get("baseline_mean_shape") or {}).get("mouth_error_px"))
-    rows[1:1] = brand_rows(ctx.get("brand"), mean_px)
+    rows[1:1] = brand_rows(ctx.get("brand"), mean_px) + karras_rows(ctx.get("karras"), mean_px)
     if rows:
         parts.append("<p>Validation videos (held out by video), lip landmarks predicted from audio against the "
                      "tracked ones.</p>")
@@ -314,6 +342,18 @@ def build_html(ctx: dict) -> str:
                            brand_paper_rows(b), "brand"))
         if ctx.get("brand_rows"):
             parts.append(f"<div class=\"plot\" id=\"plot-brand\">{em_plot(ctx['brand_rows'])}</div>")
+    if ctx.get("karras"):
+        k = ctx["karras"]
+        em = k.get("emotions") or {}
+        parts.append("<h3>Karras et al. (paper 001)</h3>"
+                     f"<p>{k.get('training_videos')} training videos ({fmt(num(k.get('training_seconds')) / 60, 1)} min, "
+                     f"{k.get('training_frames')} frames), {k.get('epochs')} epochs, "
+                     f"{fmt(num(k.get('seconds_per_epoch')), 1)} s per epoch; 42 lower-face points (jaw, nose, lips). "
+                     f"Emotion mining (§5.1): {em.get('step1', '—')} of {em.get('scanned', '—')} scanned vectors pass "
+                     f"the closed/open probes, {em.get('step2', '—')} survive playback → "
+                     f"{k.get('emotion_candidates')} candidates (<code>lipsynth emotions</code>).</p>")
+        if ctx.get("karras_rows"):
+            parts.append(f"<div class=\"plot\" id=\"plot-karras\">{karras_plot(ctx['karras_rows'])}</div>")
     parts.append("<h2>Audio → video: the synthesized video against the original (Video J)</h2>")
     ev = ctx.get("evaluate")
     if ev:
@@ -354,6 +394,7 @@ def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[d
         clips.append((label, c, opening, src, num(c.get("frames")) / num(c.get("fps", 25.0))))
     ctx = dict(title=params.report.title, train=read_json(root / params.train.metrics),
                brand=read_json(root / params.brand.metrics), brand_rows=read_csv(root / params.brand.plots),
+               karras=read_json(root / params.karras.metrics), karras_rows=read_csv(root / params.karras.plots),
                loss_rows=read_csv(root / params.train.plots), sweep_rows=read_csv(root / params.delay_sweep.plots),
                paper_delay_ms=params.report.paper_delay_ms, evaluate=ev, clips=clips,
                timings={n: read_json(root / "logs" / f"{n}.timing.json") for n in TIMING_LOGS},
@@ -362,7 +403,7 @@ def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[d
     return ctx, copies
 
 
-SHOWN_SECTIONS = ("synthetic_speaker", "data", "ingest", "landmarks", "frontalize", "pca", "train", "brand", "delay_sweep",
+SHOWN_SECTIONS = ("synthetic_speaker", "data", "ingest", "landmarks", "frontalize", "pca", "train", "brand", "karras", "delay_sweep",
                   "synthesize", "composite", "speak", "evaluate", "report")     # all but `cluster` (no effect on results)
 
 

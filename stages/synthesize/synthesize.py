@@ -189,7 +189,7 @@ def run(params: Params, out: str, stores: dict, entry: dict) -> dict:
     timing: dict = {}
     t0 = t_start = time.perf_counter()
     samples = load_audio(p.audio)
-    mouth = predict_mouth(samples, p.model, entry["fps"], device=p.device, source=p.audio)
+    mouth = predict_mouth(samples, p.model, entry["fps"], device=p.device, source=p.audio, emotion=p.emotion)
     if p.retarget not in ("auto", "always", "never"):
         raise ParameterError(f"synthesize.retarget={p.retarget!r}: choose auto, always or never")
     same_corpus = "pca" in stores and mouth["pca_fingerprint"] == stores["pca"].attrs["fingerprint"]

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from pipeline.karras_network import KarrasNetwork
-from pipeline.speech_autocorrelation import autocorrelation_features
+from pipeline.speech_autocorrelation import padded_track, windows
 from stages.train_karras import objective
 from stages.train_karras.targets import training_pairs
 
@@ -48,19 +48,23 @@ def batch_inputs(videos, rows: np.ndarray, shifts: np.ndarray):
     x, y = [], []
     for (vi, fi), s in zip(rows, shifts):
         v = videos[vi]
-        t = v["frame_time"][fi] + s
-        x.append(autocorrelation_features(v["samples"], np.array([t]), v.get("name", "audio"))[0])
-        y.append(objective.shifted_targets(v["targets"], v["frame_time"], np.array([t]))[0])
+        if "padded" not in v:
+            v["padded"] = padded_track(v["samples"], v.get("name", "audio"))
+        t = np.array([v["frame_time"][fi] + s])
+        x.append(windows(v["padded"], t)[0])
+        y.append(objective.shifted_targets(v["targets"], v["frame_time"], t)[0])
     return np.stack(x)[:, None], np.stack(y)
 
 
-def fit(videos: list[dict], config: FitConfig, progress: bool = True):
-    """Train on the ``train`` videos; returns (network, emotions (N, E) per training pair start, history)."""
+def fit(videos: list[dict], config: FitConfig, progress: bool = True, on_epoch=None):
+    """Train on the ``train`` videos; returns (network, emotions (N, E) — one per frame of the
+    training videos, in their order — and the history: per epoch the mean raw loss terms, plus
+    whatever ``on_epoch(epoch, net, emotions)`` returns (e.g. validation figures))."""
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
     train = [v for v in videos if v["split"] == "train"]
     pairs = training_pairs(train)
-    if len(pairs) < config.batch // 2:
+    if len(pairs) < config.batch:
         raise ValueError(f"{len(pairs)} training pairs are fewer than one minibatch ({config.batch // 2})")
     ys = np.concatenate([v["targets"][v["ok"]] for v in train])
     mean, comps = target_pca(ys)
@@ -71,7 +75,7 @@ def fit(videos: list[dict], config: FitConfig, progress: bool = True):
     emotions = torch.nn.Parameter(config.emotion_sigma * torch.randn(int(offsets[-1]), config.emotion_dim))
     opt = torch.optim.Adam(list(net.parameters()) + [emotions], lr=config.lr)
     loss_fn = objective.KarrasLoss(use_motion=config.motion, use_emotion=config.emotions)
-    per_epoch = max(1, len(pairs) // (config.batch // 2))
+    per_epoch = max(1, len(pairs) // config.batch)          # an epoch: as many samples as training frames
     history = []
     from tqdm import tqdm
     bar = tqdm(range(config.epochs), desc="karras", unit="epoch", leave=False, disable=not progress)
@@ -96,6 +100,12 @@ def fit(videos: list[dict], config: FitConfig, progress: bool = True):
             opt.step()
             for k, v in parts.items():
                 sums[k] = sums.get(k, 0.0) + v / per_epoch
-        history.append(dict(epoch=epoch + 1, **sums))
+        row = dict(epoch=epoch + 1, **sums)
+        if on_epoch is not None:
+            net.eval()
+            with torch.no_grad():
+                row.update(on_epoch(epoch + 1, net, emotions.detach()) or {})
+            net.train()
+        history.append(row)
         bar.set_postfix(position=f"{sums['position']:.3f}")
     return net, emotions.detach().cpu().numpy(), history
