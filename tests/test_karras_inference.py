@@ -128,3 +128,25 @@ def test_mesh_driving_points_use_the_whole_lower_face():
     rest, moved, lips, anchors = driving_points(mouth, window, shape3d)
     assert moved.shape == (5, 18, 2)
     assert any(np.allclose(a, shape3d[27, :2]) for a in anchors)
+
+
+def test_training_targets_refuse_another_landmark_layout(tmp_path):
+    import zarr
+    from pipeline.errors import LipsynthError
+    from stages.train_karras.targets import load_targets
+    for name in ("ingest", "landmarks"):
+        zarr.open_group(str(tmp_path / f"{name}.zarr"), mode="w")
+    fr = zarr.open_group(str(tmp_path / "frontalize.zarr"), mode="w")
+    fr.create_array("frontal_landmarks", shape=(10, 5, 2), dtype="float32")
+    with pytest.raises(LipsynthError, match=r"layout \(5, 2\).*68 points"):
+        load_targets(str(tmp_path / "ingest.zarr"), str(tmp_path / "landmarks.zarr"), str(tmp_path / "frontalize.zarr"))
+
+
+def test_silent_or_short_audio_is_one_clear_error(tmp_path):
+    from pipeline.errors import BadInputError
+    folder, _ = small_model(tmp_path)
+    m = load_karras(folder)
+    with pytest.raises(BadInputError, match="silent"):
+        karras_inference.predict(np.zeros(16000, np.float32), m, 25.0, source="quiet.wav")
+    with pytest.raises(BadInputError, match="too short"):
+        karras_inference.predict(np.ones(4000, np.float32), m, 25.0, source="short.wav")

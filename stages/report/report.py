@@ -39,7 +39,7 @@ from pipeline.runner import run_main, setup_logging
 from pipeline.store import atomic_output
 
 log = logging.getLogger("lipsynth.report")
-TIMING_LOGS = ("synthesize", "composite", "evaluate")
+TIMING_LOGS = ("synthesize", "composite", "evaluate", "train_karras", "render_mesh")
 
 
 # ---------------------------------------------------------------- reading inputs
@@ -226,7 +226,8 @@ def timing_tables(logs: dict[str, dict | None]) -> str:
         if not t:
             out.append(f"<p><b>{html.escape(name)}</b>: not measured (no logs/{html.escape(name)}.timing.json)</p>")
             continue
-        unit = "s per clip" if name == "evaluate" else "ms per frame (thread time) or as named"
+        unit = {"evaluate": "s per clip", "train_karras": "seconds, or as named"}.get(
+            name, "ms per frame (thread time) or as named")
         rows = [[k, fmt(v, 2)] for k, v in t.items()]
         out.append(f"<h3>{html.escape(name)} <small>({unit})</small></h3>" + table(["phase", "value"], rows, "timing"))
     return "\n".join(out)
@@ -347,8 +348,8 @@ def build_html(ctx: dict) -> str:
         em = k.get("emotions") or {}
         parts.append("<h3>Karras et al. (paper 001)</h3>"
                      f"<p>{k.get('training_videos')} training videos ({fmt(num(k.get('training_seconds')) / 60, 1)} min, "
-                     f"{k.get('training_frames')} frames), {k.get('epochs')} epochs, "
-                     f"{fmt(num(k.get('seconds_per_epoch')), 1)} s per epoch; 42 lower-face points (jaw, nose, lips). "
+                     f"{k.get('training_frames')} frames), {k.get('epochs')} epochs (time per epoch: the train_karras "
+                     "timing below); 42 lower-face points (jaw, nose, lips). "
                      f"Emotion mining (§5.1): {em.get('step1', '—')} of {em.get('scanned', '—')} scanned vectors pass "
                      f"the closed/open probes, {em.get('step2', '—')} survive playback → "
                      f"{k.get('emotion_candidates')} candidates (<code>lipsynth emotions</code>).</p>")

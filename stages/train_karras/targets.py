@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.errors import LipsynthError
 from pipeline.face import LIP_POINTS
 from pipeline.store import open_group
 
@@ -21,6 +22,10 @@ def load_targets(ingest_path: str, landmarks_path: str, frontalize_path: str) ->
     """Per video (not excluded): name, split, fps, frame_time (T,) s, targets (T, 84) px, ok (T,),
     samples (S,) float32 16 kHz mono (the audio starts at the first frame)."""
     src, lmg, fr = (open_group(p) for p in (ingest_path, landmarks_path, frontalize_path))
+    layout = fr["frontal_landmarks"].shape[1:]
+    if tuple(layout) != (68, 2):
+        raise LipsynthError(f"{frontalize_path}: frontal landmarks have layout {tuple(layout)}, the Karras targets "
+                            "need dlib's 68 points (jaw 2–14, nose 27–35, lips 48–67)")
     ok_all = np.asarray(fr["pose_valid"][...]) & np.asarray(lmg["valid"][...])
     ftime = np.asarray(src["frame_time"][...])
     out = []
