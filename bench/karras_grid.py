@@ -32,16 +32,26 @@ from pipeline.mouth_prediction import predict_mouth, to_frames         # noqa: E
 from pipeline.params import load_params                                 # noqa: E402
 
 
-def jitter(pred_coeffs: list, truths: list, oks: list, basis: dict) -> tuple[float, float]:
-    jp, jt = [], []
+def jitter(pred_coeffs: list, truths: list, oks: list, basis: dict) -> dict:
+    """Frame-to-frame motion of predicted vs tracked mouths, medians over clips.
+
+    opening: mean |second difference| of the inner-lip opening (px/frame²);
+    delta: mean |Δ| of the 18 lip points between consecutive frames (px/frame), the tracked
+    one over pairs of valid frames.
+    """
+    jp, jt, dp, dt = [], [], [], []
     for c, t, ok in zip(pred_coeffs, truths, oks):
         if ok.sum() < 10:
             continue
-        po = mouth_metrics.opening(reconstruct(c, basis))
-        to = mouth_metrics.opening(reconstruct(np.nan_to_num(t), basis))
+        pp, tp = reconstruct(c, basis), reconstruct(np.nan_to_num(t), basis)
+        po, to = mouth_metrics.opening(pp), mouth_metrics.opening(tp)
         jp.append(np.abs(np.diff(po, 2)).mean())
         jt.append(np.abs(np.diff(to, 2))[ok[2:] & ok[1:-1] & ok[:-2]].mean())
-    return float(np.median(jp)), float(np.median(jt))
+        step = lambda s: np.linalg.norm(np.diff(s.reshape(len(s), -1, 2), axis=0), axis=-1).mean(1)
+        dp.append(step(pp).mean())
+        dt.append(step(tp)[ok[1:] & ok[:-1]].mean())
+    med = lambda x: float(np.median(x))
+    return dict(jitter=med(jp), jitter_tracked=med(jt), delta=med(dp), delta_tracked=med(dt))
 
 
 def score(preds: list, data: dict, basis: dict, iod: float) -> dict:
@@ -49,7 +59,7 @@ def score(preds: list, data: dict, basis: dict, iod: float) -> dict:
     truths, oks = [s["frame_y"] for s in val], [s["frame_ok"] for s in val]
     preds = [p[:len(t)] for p, t in zip(preds, truths)]
     m = mouth_metrics.evaluate_videos(preds, truths, oks, [s["fps"] for s in val], basis, iod)
-    m["jitter"], m["jitter_tracked"] = jitter(preds, truths, oks, basis)
+    m.update(jitter(preds, truths, oks, basis))
     m.pop("per_clip", None)
     return m
 
@@ -110,12 +120,14 @@ def main() -> int:
         rows[f"lstm same minutes ({len(sub['train'])} videos)"] = dict(
             score(frames, data, basis, iod), train_seconds=time.perf_counter() - t0)
     mean_px = rows["mean shape"]["mouth_error_px"]
-    print(f"\n{'model':<52} {'px':>6} {'%IOD':>6} {'ratio':>6} {'corr':>6} {'≤1 fr':>6} {'jitter':>7}")
+    print(f"\n{'model':<52} {'px':>6} {'%IOD':>6} {'ratio':>6} {'corr':>6} {'≤1 fr':>6} {'jitter':>7} {'|Δ|':>6}")
     for name, m in rows.items():
         print(f"{name:<52} {m['mouth_error_px']:6.3f} {m['mouth_error_iod_pct']:6.2f} "
               f"{m['mouth_error_px'] / mean_px:6.3f} {m['median_opening_corr']:6.3f} "
-              f"{100 * m['av_within_one_frame']:5.0f}% {m['jitter']:7.3f}")
-    print(f"tracked mouth jitter {rows['mean shape']['jitter_tracked']:.3f} px/frame²")
+              f"{100 * m['av_within_one_frame']:5.0f}% {m['jitter']:7.3f} {m['delta']:6.3f}")
+    t = rows["mean shape"]
+    print(f"tracked mouth: jitter {t['jitter_tracked']:.3f} px/frame² (opening), |Δ| {t['delta_tracked']:.3f} px/frame "
+          "(lip points)")
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(rows, indent=2))
     return 0

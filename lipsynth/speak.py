@@ -109,6 +109,25 @@ def fit_report(p: Params, target: str) -> dict:
     return rep
 
 
+def audio_domain_check(samples, model: str, p: Params, audio: str) -> dict | None:
+    """Warn (one line) when the audio is far from the model's training audio (``pipeline.audio_domain``)."""
+    from pipeline import audio_domain, audio_features
+    record = audio_domain.load(model)
+    if record is None:
+        return None
+    res = audio_domain.assess(audio_features.mfcc_features(samples), record, p.speak.audio_shift_factor)
+    if res["far"]:
+        log.warning("%s: this audio is far from the model's training audio (MFCC shift %.2f training std; the "
+                    "speaker's own held-out clips reach %.2f, limit speak.audio_shift_factor × that = %.2f): another "
+                    "voice or microphone — expect weaker lip sync; a model trained with train.feature_norm: "
+                    "utterance (per-utterance CMVN) suits other voices better", audio, res["shift"],
+                    record["held_out_max"], res["limit"])
+    else:
+        log.info("audio: MFCC shift %.2f training std from the model's training audio (limit %.2f)", res["shift"],
+                 res["limit"])
+    return res
+
+
 def choose_speaker(p: Params, model: str, target: str) -> tuple[dict | None, dict]:
     """Is the target the model's speaker? Returns (the model's speaker when it is and its bank fits, report)."""
     speaker = load_speaker(model)
@@ -139,13 +158,15 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     if not Path(out).absolute().parent.is_dir():
         raise ParameterError(f"--out {out}: the folder {Path(out).absolute().parent} does not exist")
     model = model or params.synthesize.model
-    load_audio(audio)                          # a bad audio file fails now, not after preprocessing,
+    samples = load_audio(audio)                # a bad audio file fails now, not after preprocessing,
     probe_video(str(target), params.ingest, require_audio=False)     # so does a target failing header checks
     check_model(model)                         # and a bad model folder (any family)
     check_emotion(model, emotion)              # and an emotion the model cannot take
+    domain = audio_domain_check(samples, model, params, audio)
     cache = cache or default_cache()
     p = landmarked_target(Path(target), params, cache)
     speaker, report = choose_speaker(p, model, target)
+    report["audio_domain"] = domain
     p = preprocess_target(Path(target), params, cache, shape3d=None if speaker is None else speaker["shape3d"])
     report["fit"] = fit_report(p, target)
     p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, model

@@ -267,6 +267,7 @@ class Speak:
     min_mouth_shapes: int = 30
     max_reprojection_median: float = 0.08
     max_pose_jump_deg: float = 10.0
+    audio_shift_factor: float = 1.2
 
 
 @dataclass

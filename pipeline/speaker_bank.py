@@ -5,6 +5,8 @@
                                  surface f*, texture_window [x0, y0, mm_per_px, size] (the mesh render),
                                  identity (128,) — median dlib face descriptor of training frames,
                                  identity_spread (F,) — each sampled frame's distance to it
+    models/<model>/audio_domain.json  the training audio's MFCC mean/std and the shifts of the held-out
+                                 (validation) clips from it (``pipeline.audio_domain``): speak warns about far audio
     models/<model>/bank.zarr     the candidate bank: ``train.bank_frames`` training frames spread
                                  evenly over the training videos (valid pose and landmarks):
         texture (P, 3T/2, T) uint8 I420 frontal texture, clothing_mask (P, T, T) bool,
@@ -22,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline import audio_domain
 from pipeline import identity as ident
 from pipeline.store import create_group, open_group, take
 
@@ -78,8 +81,11 @@ def export_speaker(folder, ingest_path: str, landmarks_path: str, frontalize_pat
     size = sum(f.stat().st_size for f in (Path(folder) / "bank.zarr").rglob("*") if f.is_file())
     log.info("speaker: identity from %d frames (spread median %.3f, max %.3f); candidate bank %d of %d training "
              "frames, %.1f MB", len(pick), float(np.median(spread)), float(spread.max()), P, len(idx), size / 1e6)
+    domain = audio_domain.export(folder, ingest_path)        # how far new audio may be from the training audio
+    log.info("speaker: audio domain from the training MFCC; held-out clips shift %.3f (median) … %.3f (max)",
+             domain["held_out_median"], domain["held_out_max"])
     return dict(identity_frames=int(len(pick)), identity_spread_max=float(spread.max()), bank_frames=int(P),
-                bank_mb=round(size / 1e6, 2))
+                bank_mb=round(size / 1e6, 2), audio_held_out_shift_max=domain["held_out_max"])
 
 
 def _rgb(i420) -> np.ndarray:

@@ -361,6 +361,7 @@ def test_speak_into_a_target_without_an_audio_track(project, tmp_path):
     r = speak(project, tmp_path, "--audio", project / "data" / "synthetic_speaker" / "speaker_03.mp4",
               "--target", target, "--out", out)
     assert r.returncode == 0, r.stderr
+    assert "far from the model's training audio" not in r.stderr           # the speaker's own voice
     with av.open(str(out)) as c:
         assert c.streams.audio and sum(1 for _ in c.decode(video=0)) == 250     # the 10 s speech
 
@@ -395,6 +396,7 @@ def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
     r = speak(project, tmp_path, "--audio", audio, "--target", target, "--out", out, "--no-retime")
     assert r.returncode == 0, r.stderr
     assert "re-targeting predicted mouth shapes" in r.stderr
+    assert "far from the model's training audio" in r.stderr               # radio speech, not the synthetic voice
     assert "another person" in r.stderr and "candidate bank" not in r.stderr     # never the synthetic face's mouth
     checked = re.search(r"self-check: (\d+) frames checked, (\d+) fell back", r.stderr)
     assert checked and int(checked[1]) >= 190 and int(checked[2]) <= 10, r.stderr[-2000:]
