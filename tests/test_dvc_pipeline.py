@@ -22,7 +22,7 @@ from tests.conftest import ROOT
 def dvc(proj, *args):
     env = dict(os.environ, PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"])
     r = subprocess.run([sys.executable, "-m", "dvc", *args], cwd=proj, env=env, capture_output=True, text=True,
-                       timeout=900)
+                       timeout=2400)        # a whole repro: ~5 min alone on 2 cores, far more on a loaded machine
     assert r.returncode == 0, f"dvc {' '.join(args)} failed:\n{r.stdout}\n{r.stderr}"
     return r.stdout + r.stderr
 
