@@ -19,12 +19,10 @@ and interview speech 0.62–1.08; Obama addresses 0.72–0.86; Macron (French) 0
 from __future__ import annotations
 
 import json
-import logging
 from pathlib import Path
 
 import numpy as np
 
-log = logging.getLogger("lipsynth.audio_domain")
 FILE = "audio_domain.json"
 
 
