@@ -1,17 +1,30 @@
-"""Lip sync of a model on speakers it was not trained on: real clips with their own audio.
+"""Lip sync of a model on voices it was not trained on (issue 13): per clip, the model's predicted
+inner-lip opening from the clip's own audio against the truth.
 
-For every clip, the model's predicted inner-lip opening (from the clip's audio) is correlated
-with the opening tracked on the clip's own video (the pipeline's landmark tracker). A model
-that learned its speaker's acoustics rather than speech shows a low correlation here.
+Truth:
+  * real clips of other people with video — the opening tracked on the clip itself by the
+    pipeline's landmark tracker (normalised by the inter-ocular distance): Obama (720p, 29.97 fps),
+    HDTF (512², 25 fps), Macron (French, 50 s), GRID speaker 4 (720×576);
+  * synthetic speech — the project's formant voice (``stages.synthetic_speaker``), whose
+    synthesiser reports its phone timing: the truth is the mouth opening its articulation model
+    derives from those phones (no video needed).
 
-    python bench/cross_speaker.py --model runs/grid_s1/models/lstm
+Per clip: Pearson correlation at lag 0 and the best lag within ±5 frames (+ = prediction late);
+per model: medians, share of clips whose best lag is within one frame, and the in-domain figures
+from the model's training metrics when given (``--metrics``). Also the cost of each front end
+(ms of one core per second of audio, median of repeats).
 
-Clips: ../shared/data/obama/obama_0*.mp4 (720p, 29.97 fps) and the two HDTF clips (512², 25 fps).
+    python bench/cross_speaker.py --model runs/grid_s1/models/lstm --metrics runs/grid_s1/metrics/train.json \\
+        --model runs/grid_s1/models/lstm_phonetic --metrics runs/grid_s1/metrics/train_phonetic.json
+
+Writes bench/results/cross_speaker.json and a plot cross_speaker.png (per-clip correlations).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -19,54 +32,164 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lipsynth import lipsync_quality as quality  # noqa: E402
-from pipeline import media  # noqa: E402
 from pipeline.face import LIP_POINTS  # noqa: E402
+from pipeline.lipsync_measures import best_lag  # noqa: E402
 from pipeline.mouth_prediction import load_audio, predict_mouth  # noqa: E402
-from pipeline.params import load_params  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
+RESULTS = ROOT / "bench" / "results"
 TOP, BOTTOM = [LIP_POINTS.index(k) for k in (61, 62, 63)], [LIP_POINTS.index(k) for k in (67, 66, 65)]
+SYNTH_SEEDS = (101, 102, 103, 104)
+SYNTH_SECONDS = 10.0
 
 
-def best_lag(a: np.ndarray, b: np.ndarray, max_lag: int = 5) -> tuple[int, float]:
-    """Lag (frames, + = prediction late) maximising the correlation, and that correlation."""
-    best = (0, -1.0)
-    for lag in range(-max_lag, max_lag + 1):
-        x, y = a[max(lag, 0):len(a) + min(lag, 0)], b[max(-lag, 0):len(b) + min(-lag, 0)]
-        c = float(np.corrcoef(x, y)[0, 1])
-        best = max(best, (lag, c), key=lambda t: t[1])
-    return best
+def real_clips() -> list[tuple[str, Path]]:
+    groups = [("obama", sorted((SHARED / "obama").glob("obama_0*.mp4"))),
+              ("hdtf", sorted((SHARED / "hdtf").glob("WDA_*.mp4"))),
+              ("macron", sorted((SHARED / "macron").glob("*.mp4"))),
+              ("grid_s4", sorted((SHARED / "grid_s4").glob("*.mpg")))]
+    return [(g, p) for g, paths in groups for p in paths]
+
+
+def tracked_truth(clip: Path, cache: Path) -> dict:
+    """Tracked inner-lip opening / IOD per frame, validity and fps of a real clip (cached)."""
+    from lipsynth import lipsync_quality as quality
+    from pipeline import media
+    from pipeline.params import load_params
+    f = cache / f"{clip.parent.name}_{clip.stem}.npz"
+    if f.exists():
+        z = np.load(f)
+        return dict(opening=z["opening"], ok=z["ok"], fps=float(z["fps"]))
+    _, lms, ok = quality.video_landmarks(clip, load_params(ROOT / "params.yaml").landmarks)
+    iod = np.median(quality.interocular(lms[ok])) if ok.any() else 1.0
+    out = dict(opening=quality.inner_opening(lms) / iod, ok=ok, fps=media.probe(clip).fps)
+    cache.mkdir(parents=True, exist_ok=True)
+    np.savez(f, **out)
+    return out
+
+
+def synthetic_clip(seed: int, fps: float = 25.0) -> dict:
+    """The formant voice on a random phone sequence, and the mouth opening its phones imply."""
+    from stages.synthetic_speaker import articulation, language, speech
+    rng = lambda k: np.random.default_rng([seed, k])
+    phones, stressed = language.sample_phone_sequence(rng(0), SYNTH_SECONDS)
+    targets, dominance = articulation.mouth_targets(phones, rng(1))
+    t = np.arange(int(SYNTH_SECONDS * fps)) / fps
+    opening = articulation.mouth_trajectory(phones, targets, dominance, t)[:, 0]
+    audio = speech.synthesize_speech(phones, stressed, rng(2), 16000, int(SYNTH_SECONDS * 16000))
+    return dict(opening=opening, ok=np.ones(len(t), bool), fps=fps, audio=audio)
+
+
+def score(pred: np.ndarray, truth: np.ndarray, ok: np.ndarray) -> dict:
+    n = min(len(pred), len(truth))
+    p, t, k = pred[:n], truth[:n], ok[:n]
+    c0 = float(np.corrcoef(p[k], t[k])[0, 1])
+    pm, tm = np.where(k, p, np.nan), np.where(k, t, np.nan)
+    lag = best_lag(pm, tm, 5)
+    x, y = pm[max(lag, 0):n + min(lag, 0)], tm[max(-lag, 0):n + min(-lag, 0)]
+    both = np.isfinite(x) & np.isfinite(y)
+    return dict(corr_lag0=c0, best_lag=int(lag), corr_best=float(np.corrcoef(x[both], y[both])[0, 1]))
+
+
+def predicted_opening(samples: np.ndarray, model: str, fps: float) -> np.ndarray:
+    m = predict_mouth(samples, model, fps)
+    return (m["lip_points"][:, BOTTOM, 1] - m["lip_points"][:, TOP, 1]).mean(1)
+
+
+def front_end_cost(repeats: int = 5) -> dict:
+    """ms of one core per second of audio for each front end (median of ``repeats``)."""
+    from pipeline import front_ends
+    samples = load_audio(SHARED / "grid_s1" / "video" / "bgaa6n.mp4") if (SHARED / "grid_s1").exists() else \
+        synthetic_clip(SYNTH_SEEDS[0])["audio"]
+    seconds = len(samples) / 16000
+    out = {}
+    for fe in front_ends.FRONT_ENDS:
+        front_ends.frame_features(samples, fe)                 # warm-up (decoder load)
+        times = []
+        for _ in range(repeats):
+            t0 = time.process_time()
+            front_ends.frame_features(samples, fe)
+            times.append(time.process_time() - t0)
+        out[fe] = 1000 * float(np.median(times)) / seconds
+    return out
+
+
+def plot(results: dict, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    models = list(results)
+    clips = [c["clip"] for c in results[models[0]]["clips"]]
+    fig, ax = plt.subplots(figsize=(max(8, 0.45 * len(clips)), 4.2))
+    w = 0.8 / len(models)
+    for i, m in enumerate(models):
+        ax.bar(np.arange(len(clips)) + i * w, [c["corr_lag0"] for c in results[m]["clips"]], w,
+               label=f"{results[m]['label']} (median {results[m]['median_corr_lag0']:+.2f})")
+    ax.axhline(0.5, color="k", lw=0.8, ls="--")
+    ax.set_xticks(np.arange(len(clips)) + 0.4 - w / 2, clips, rotation=70, ha="right", fontsize=7)
+    ax.set_ylabel("opening correlation at lag 0")
+    ax.set_title("other voices: predicted vs true inner-lip opening (dashed: goal 0.5)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", action="append", required=True, help="model folder (repeatable)")
+    ap.add_argument("--metrics", action="append", default=[], help="its training metrics json (same order; optional)")
+    ap.add_argument("--out", default=str(RESULTS / "cross_speaker.json"))
+    ap.add_argument("--no-synthetic", action="store_true", help="leave out the formant-voice clips")
     a = ap.parse_args()
-    lp = load_params(ROOT / "params.yaml").landmarks
-    clips = sorted((SHARED / "obama").glob("obama_0*.mp4")) + sorted((SHARED / "hdtf").glob("WDA_*.mp4"))
-    tracked = {}
-    for clip in clips:
-        _, lms, ok = quality.video_landmarks(clip, lp)
-        iod = np.median(quality.interocular(lms[ok])) if ok.any() else 1.0
-        tracked[clip] = (quality.inner_opening(lms) / iod, ok, media.probe(clip).fps)
-    for model in a.model:
-        corr0, corrs = [], []
-        print(f"\n{model}")
-        for clip in clips:
-            truth, ok, fps = tracked[clip]
-            if ok.mean() < 0.5:
-                print(f"  {clip.name:<34} face tracked in only {ok.mean():.0%} of the frames: skipped")
-                continue
-            m = predict_mouth(load_audio(clip), model, fps)
-            pred = (m["lip_points"][:, BOTTOM, 1] - m["lip_points"][:, TOP, 1]).mean(1)
-            n = min(len(pred), len(truth))
-            keep = ok[:n]
-            c0 = float(np.corrcoef(pred[:n][keep], truth[:n][keep])[0, 1])
-            lag, c = best_lag(pred[:n], truth[:n])
-            corr0.append(c0); corrs.append(c)
-            print(f"  {clip.name:<34} opening corr at lag 0: {c0:+.3f}   best {c:+.3f} at {lag:+d} frames")
-        print(f"  median corr at lag 0: {np.median(corr0):+.3f}   median best: {np.median(corrs):+.3f}")
+    cache = RESULTS / ".cross_speaker_cache"
+    truth = {}
+    for group, clip in real_clips():
+        t = tracked_truth(clip, cache)
+        if t["ok"].mean() < 0.5:
+            print(f"{clip.name}: face tracked in only {t['ok'].mean():.0%} of the frames: left out")
+            continue
+        truth[f"{group}/{clip.stem}"] = dict(t, audio=load_audio(clip))
+    if not a.no_synthetic:
+        for s in SYNTH_SEEDS:
+            truth[f"synthetic/voice_{s}"] = synthetic_clip(s)
+    results = {}
+    for i, model in enumerate(a.model):
+        rows = []
+        for name, t in truth.items():
+            r = dict(clip=name, **score(predicted_opening(t["audio"], model, t["fps"]), t["opening"], t["ok"]))
+            rows.append(r)
+            print(f"  {model:<40} {name:<40} lag 0 {r['corr_lag0']:+.3f}   best {r['corr_best']:+.3f} at "
+                  f"{r['best_lag']:+d}", flush=True)
+        cfg = json.loads((Path(model) / "config.json").read_text())
+        real = [r for r in rows if not r["clip"].startswith("synthetic/")]
+        res = dict(label=f"{Path(model).name} ({cfg.get('features', 'mfcc')}, {cfg.get('feature_norm', 'corpus')})",
+                   clips=rows, median_corr_lag0=float(np.median([r["corr_lag0"] for r in real])),
+                   median_corr_best=float(np.median([r["corr_best"] for r in real])),
+                   within_one_frame=float(np.mean([abs(r["best_lag"]) <= 1 for r in real])),
+                   synthetic_median_corr_lag0=float(np.median([r["corr_lag0"] for r in rows if r["clip"].startswith("synthetic/")]))
+                   if not a.no_synthetic else None)
+        if i < len(a.metrics):
+            v = json.loads(Path(a.metrics[i]).read_text())["val"]
+            res["in_domain"] = dict(mouth_error_iod_pct=v["mouth_error_iod_pct"], mouth_error_px=v["mouth_error_px"],
+                                    median_opening_corr=v["median_opening_corr"])
+        results[model] = res
+    cost = front_end_cost()
+    print("\n| model | front end, norm | GRID s1 val error % IOD | GRID s1 val opening corr | other people: median corr lag 0"
+          " | best lag | within 1 frame | synthetic voice corr lag 0 |")
+    print("|---|---|---|---|---|---|---|---|")
+    for model, r in results.items():
+        d = r.get("in_domain", {})
+        syn = "" if r["synthetic_median_corr_lag0"] is None else f"{r['synthetic_median_corr_lag0']:+.2f}"
+        print(f"| {Path(model).name} | {r['label'].split('(')[1].rstrip(')')} | {d.get('mouth_error_iod_pct', float('nan')):.3f}"
+              f" | {d.get('median_opening_corr', float('nan')):.3f} | {r['median_corr_lag0']:+.2f} | {r['median_corr_best']:+.2f}"
+              f" | {r['within_one_frame']:.0%} | {syn} |")
+    print("\nfront-end cost (ms of one core per s of audio, median of 5): " +
+          ", ".join(f"{k} {v:.1f}" for k, v in cost.items()))
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(dict(models=results, front_end_ms_per_s=cost), indent=2))
+    plot(results, out.with_suffix(".png"))
+    print(f"wrote {out} and {out.with_suffix('.png')}")
 
 
 if __name__ == "__main__":

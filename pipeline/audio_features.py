@@ -46,7 +46,7 @@ def frame_signal(samples: np.ndarray, win: int = WIN, hop: int = HOP) -> np.ndar
     return padded[idx]
 
 
-_MEL: np.ndarray | None = None
+_MEL: dict = {}
 
 
 def hz_to_mel(f):
@@ -58,27 +58,41 @@ def mel_to_hz(m):
     return 700.0 * (10.0 ** (np.asarray(m, np.float64) / 2595.0) - 1.0)
 
 
-def mel_filterbank(n_mels: int = N_MELS, n_fft: int = N_FFT, sample_rate: int = SAMPLE_RATE) -> np.ndarray:
+def vtlp_warp(freqs, alpha: float, sample_rate: int = SAMPLE_RATE, f_hi: float = 4800.0) -> np.ndarray:
+    """Vocal-tract-length perturbation (Jaitly & Hinton 2013): frequency f (Hz) → f·α below the
+    boundary f_hi·min(α, 1)/α, then linear so that Nyquist stays at Nyquist. α = 1 is the identity;
+    α > 1 stretches the spectrum (a shorter vocal tract), α < 1 compresses it."""
+    f = np.asarray(freqs, np.float64)
+    nyq = sample_rate / 2
+    knee = f_hi * min(alpha, 1.0) / alpha
+    top = nyq - (nyq - f_hi * min(alpha, 1.0)) / (nyq - knee) * (nyq - f)
+    return np.where(f <= knee, f * alpha, top)
+
+
+def mel_filterbank(n_mels: int = N_MELS, n_fft: int = N_FFT, sample_rate: int = SAMPLE_RATE,
+                   warp: float = 1.0) -> np.ndarray:
     """(n_mels, n_fft // 2 + 1) triangular filters with peak 1, equally spaced on the HTK mel
-    scale from 0 Hz to Nyquist."""
-    global _MEL
-    if _MEL is not None and _MEL.shape == (n_mels, n_fft // 2 + 1):
-        return _MEL
+    scale from 0 Hz to Nyquist; ``warp`` ≠ 1 reads the spectrum through ``vtlp_warp``."""
+    key = (n_mels, n_fft, sample_rate, float(warp))
+    if key in _MEL:
+        return _MEL[key]
     edges = mel_to_hz(np.linspace(0.0, hz_to_mel(sample_rate / 2), n_mels + 2))
     bins = np.linspace(0.0, sample_rate / 2, n_fft // 2 + 1)
+    if warp != 1.0:
+        bins = vtlp_warp(bins, warp, sample_rate)
     lo, mid, hi = edges[:-2, None], edges[1:-1, None], edges[2:, None]
     up = (bins[None] - lo) / (mid - lo)
     down = (hi - bins[None]) / (hi - mid)
-    _MEL = np.maximum(0.0, np.minimum(up, down))
-    return _MEL
+    _MEL[key] = np.maximum(0.0, np.minimum(up, down))
+    return _MEL[key]
 
 
-def log_mel(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def log_mel(samples: np.ndarray, warp: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Log mel energies (T, 40) and log mean energy (T,) of each 25 ms window."""
     frames = frame_signal(samples)
     window = scipy.signal.get_window("hann", WIN, fftbins=True)
     power = np.abs(np.fft.rfft(frames * window, n=N_FFT)) ** 2
-    mel = np.log(power @ mel_filterbank().T + EPS)
+    mel = np.log(power @ mel_filterbank(warp=warp).T + EPS)
     energy = np.log(np.mean(frames ** 2, axis=1) + EPS)
     return mel, energy
 
@@ -91,13 +105,15 @@ def delta(x: np.ndarray, width: int = 2) -> np.ndarray:
     return num / (2 * sum(k * k for k in range(1, width + 1)))
 
 
-def mfcc_features(samples: np.ndarray, sample_rate: int = SAMPLE_RATE) -> np.ndarray:
+def mfcc_features(samples: np.ndarray, sample_rate: int = SAMPLE_RATE, warp: float = 1.0) -> np.ndarray:
     """28-D features at 100 Hz: 13 MFCC, log mean energy, and their deltas.
 
     Parameters
     ----------
     samples : ndarray, shape (S,)
         Mono audio at 16 kHz, already RMS-normalised (see ``rms_normalize``).
+    warp : float
+        VTLP factor α (``vtlp_warp``; training augmentation, ``train.vtlp_warps``); 1 = the paper.
 
     Returns
     -------
@@ -107,7 +123,7 @@ def mfcc_features(samples: np.ndarray, sample_rate: int = SAMPLE_RATE) -> np.nda
         raise ParameterError(f"mfcc_features expects {SAMPLE_RATE} Hz audio, got {sample_rate} Hz (resample first)")
     if samples.ndim != 1:
         raise ParameterError(f"mfcc_features expects mono (S,) audio, got shape {samples.shape}")
-    mel, energy = log_mel(samples)
+    mel, energy = log_mel(samples, warp)
     ceps = scipy.fft.dct(mel, type=2, norm="ortho", axis=1)[:, :N_CEPS]
     static = np.concatenate([ceps, energy[:, None]], axis=1)
     return np.concatenate([static, delta(static)], axis=1).astype(np.float32)

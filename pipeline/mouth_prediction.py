@@ -6,8 +6,8 @@ and ``lipsynth predict-mouth`` call, whatever family the folder holds: ``lstm`` 
 closed-form trajectory at ``fps``) or ``karras`` (Karras et al., ``pipeline.karras_inference``:
 autocorrelation windows at the frame times, two inferences 4 ms apart, a constant or interpolated
 emotion vector — ``emotion``; its output also has ``face_points``, the whole lower face). The audio is any file PyAV reads (wav, mp3, m4a, the audio
-of a video...), any rate and channel count: it is mixed to mono, resampled to 16 kHz, RMS-normalised and turned into the paper's
-28-D MFCC features. The LSTM runs over them (in chunks that carry its state, if asked — the
+of a video...), any rate and channel count: it is mixed to mono, resampled to 16 kHz, RMS-normalised and turned into the model's
+front end (``pipeline.front_ends``: the paper's 28-D MFCC, pocketsphinx phone indicators, or both). The LSTM runs over them (in chunks that carry its state, if asked — the
 result equals one pass) and its 100 Hz output is sampled at the video frame times
 t_k = k / fps, k < round(duration · fps).
 
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import audio_features, media
+from pipeline import audio_features, front_ends, media
 from pipeline.errors import BadInputError, ParameterError
 from pipeline.mouth_pca import reconstruct
 
@@ -85,9 +85,11 @@ def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: flo
                     mean_shape=puppet["pca_mean"].reshape(-1, 2).astype(np.float32))
     dev = pick_device(device)
     model, config, arrays = load_model(model_dir, dev)
-    x = audio_features.mfcc_features(samples)
+    features = config.get("features", "mfcc")
+    x = front_ends.frame_features(samples, features)
+    front_ends.check_width(x, features, len(arrays["feature_mean"]), str(model_dir))
     if config.get("feature_norm", "corpus") == "utterance":
-        x = audio_features.cmvn(x)
+        x = front_ends.utterance_norm(x, features)
     x = (x - arrays["feature_mean"]) / arrays["feature_std"]
     chunk = int(chunk_seconds * 100) if chunk_seconds else None
     c100 = predict_sequence(model, x.astype(np.float32), config["delay"], dev, chunk)

@@ -116,6 +116,11 @@ class Pca:
 
 
 @dataclass
+class Phonetic:
+    out: str = "store/phonetic.zarr"
+
+
+@dataclass
 class Train:
     model: str = "lstm"
     out: str = "models/lstm"
@@ -130,12 +135,15 @@ class Train:
     epochs: int = 300
     baselines: bool = True
     feature_norm: str = "corpus"
+    features: str = "mfcc"
+    vtlp_warps: list = field(default_factory=list)
     seed: int = 0
     device: str = "auto"
     bank_frames: int = 3000
     identity_frames: int = 60
 
-    CHOICES = {"model": ("lstm",), "feature_norm": ("corpus", "utterance")}
+    CHOICES = {"model": ("lstm",), "feature_norm": ("corpus", "utterance"),
+               "features": ("mfcc", "phonetic", "mfcc+phonetic")}
 
 
 @dataclass
@@ -297,6 +305,7 @@ class Params:
     landmarks: Landmarks = field(default_factory=Landmarks)
     frontalize: Frontalize = field(default_factory=Frontalize)
     pca: Pca = field(default_factory=Pca)
+    phonetic: Phonetic = field(default_factory=Phonetic)
     train: Train = field(default_factory=Train)
     brand: Brand = field(default_factory=Brand)
     karras: Karras = field(default_factory=Karras)

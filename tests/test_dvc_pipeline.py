@@ -74,7 +74,7 @@ def project(tmp_path_factory):
     return proj
 
 
-STAGES = ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca", "train", "train_brand", "train_karras",
+STAGES = ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca", "phonetic", "train", "train_brand", "train_karras",
           "render_mesh", "delay_sweep", "synthesize", "composite")
 KARRAS_EPOCHS = 30          # CI keeps the Karras run short through params (the default is the paper's 500)
 
@@ -237,6 +237,32 @@ def test_render_mesh_cli_writes_an_mp4_with_audio(project, tmp_path):
     # the mouth region changes over the clip (the lips move), the border does not
     stack = np.stack([f.astype(float) for f in frames])
     assert stack[:, 60:120, 40:120].std(0).mean() > 2 * stack[:, 140:155, 40:120].std(0).mean()
+
+
+@pytest.mark.slow
+def test_phonetic_store_and_a_phonetic_model(project, tmp_path):
+    """The phonetic stage stores one class per 10 ms frame on the MFCC axis; train.features reruns
+    training (not the phone recogniser); a model trained on mfcc+phonetic answers predict_mouth."""
+    from pipeline.mouth_prediction import load_audio, predict_mouth
+    ph, ing = zarr.open_group(str(project / "store" / "phonetic.zarr")), zarr.open_group(str(project / "store" / "ingest.zarr"))
+    phones = np.asarray(ph["phones"][...])
+    assert phones.shape == (ing["mfcc"].shape[0], 40)
+    for v in ph.attrs["videos"]:
+        rows = phones[v["first_mfcc"]:v["first_mfcc"] + v["n_mfcc"]]
+        assert (rows.sum(1) == 1).all(), v["name"]
+    with edited_params(project, "train", "features", "mfcc+phonetic"):
+        status = set(json.loads(dvc(project, "status", "--json").strip().splitlines()[-1]))
+    assert "train" in status and not {"ingest", "phonetic", "pca", "train_brand", "train_karras"} & status, status
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    params["train"].update(features="mfcc+phonetic", epochs=15, baselines=False, out=str(tmp_path / "m"),
+                           metrics=str(tmp_path / "m.json"), plots=str(tmp_path / "m.csv"))
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    r = subprocess.run([sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")],
+                       cwd=project, capture_output=True, text=True, timeout=1200)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert json.loads((tmp_path / "m" / "config.json").read_text())["features"] == "mfcc+phonetic"
+    out = predict_mouth(load_audio(project / "data" / "synthetic_speaker" / "speaker_01.mp4"), tmp_path / "m", 25)
+    assert out["coeffs"].shape == (250, 20) and np.isfinite(out["coeffs"]).all()
 
 
 @pytest.mark.slow

@@ -65,7 +65,8 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
 
     Parameters
     ----------
-    train_seqs, val_seqs : list of (x (m, 28) normalised float32, y (m, 20), ok (m,) bool)
+    train_seqs, val_seqs : list of (x (m, D) normalised float32, y (m, 20), ok (m,) bool); a training
+        x may also be (K, m, D): K augmented copies of the same audio, one drawn per epoch
     p : train params (hidden, layers, batch_size, bptt, lr, epochs).
 
     Returns
@@ -76,15 +77,17 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    n_in, n_out = train_seqs[0][0].shape[1], train_seqs[0][1].shape[1]
+    n_in, n_out = train_seqs[0][0].shape[-1], train_seqs[0][1].shape[1]
     model = DelayedLSTM(n_in, p.hidden, n_out, p.layers).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=p.lr)
-    shifted = [delayed_pairs(x, y, ok, delay) for x, y, ok in train_seqs]
+    # x may hold K variants (K, m, n_in) of the same audio (VTLP copies): each epoch draws one per video
+    variants = [[delayed_pairs(xv, y, ok, delay) for xv in (x if x.ndim == 3 else x[None])] for x, y, ok in train_seqs]
     history = []
     bar = tqdm(range(p.epochs), desc=f"train {desc} (d={delay})", unit="epoch", dynamic_ncols=True)
     for epoch in bar:
         t0 = time.perf_counter()
         model.train()
+        shifted = [v[0] if len(v) == 1 else v[rng.integers(len(v))] for v in variants]
         X, Y, M = (torch.from_numpy(a).to(device) for a in make_streams(shifted, p.batch_size, p.bptt, rng))
         state, total, count = None, 0.0, 0.0
         for a in range(0, X.shape[1], p.bptt):

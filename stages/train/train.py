@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import audio_features
+from pipeline import front_ends
 from pipeline.errors import LipsynthError, ParameterError
 from pipeline.params import Params, Train, as_dict
 from pipeline.runner import stage_main
@@ -33,10 +33,18 @@ log = logging.getLogger("lipsynth.train")
 MODELS = ("lstm",)
 
 
-def load_sequences(ingest_path: str, pca_path: str):
-    """Per-video (x (m, 28), y (m, 20), ok (m,)) at 100 Hz, plus frame-rate truth for evaluation."""
+def load_sequences(ingest_path: str, pca_path: str, features: str = "mfcc", phonetic_path: str | None = None):
+    """Per-video (x (m, D), y (m, 20), ok (m,)) at 100 Hz, plus frame-rate truth for evaluation.
+
+    x holds the ``features`` front end (``pipeline.front_ends``): ingest's MFCC and/or the
+    ``phonetic`` stage's phone indicators (same time axis)."""
     src, pca = open_group(ingest_path), open_group(pca_path)
-    mfcc = np.asarray(src["mfcc"][...], np.float32)
+    mfcc = np.asarray(src["mfcc"][...], np.float32) if front_ends.uses_mfcc(features) else None
+    phones = None
+    if front_ends.uses_phones(features):
+        if phonetic_path is None:
+            raise ParameterError(f"train.features={features!r} needs the phonetic store (run the phonetic stage)")
+        phones = np.asarray(open_group(phonetic_path)["phones"][...], np.float32)
     c100 = np.asarray(pca["coeffs_100hz"][...], np.float32)
     v100 = np.asarray(pca["valid_100hz"][...])
     coeffs = np.asarray(pca["coeffs"][...], np.float32)
@@ -47,7 +55,9 @@ def load_sequences(ingest_path: str, pca_path: str):
         if v.get("excluded"):
             continue
         m0, m, f0, n = v["first_mfcc"], v["n_mfcc"], v["first_frame"], v["n_frames"]
-        out[v["split"]].append(dict(name=v["name"], fps=v["fps"], x=mfcc[m0:m0 + m], y=c100[m0:m0 + m],
+        x = front_ends.combine(features, None if mfcc is None else mfcc[m0:m0 + m],
+                               None if phones is None else phones[m0:m0 + m])
+        out[v["split"]].append(dict(name=v["name"], fps=v["fps"], x=x, y=c100[m0:m0 + m], audio=(v["first_sample"], v["n_samples"]),
                                     ok=v100[m0:m0 + m], frame_y=coeffs[f0:f0 + n], frame_ok=valid[f0:f0 + n],
                                     frame_time=ftime[f0:f0 + n]))
     if not out["train"]:
@@ -63,27 +73,51 @@ def normalisation(train: list[dict]) -> tuple[np.ndarray, np.ndarray]:
     return x.mean(0).astype(np.float32), np.maximum(x.std(0), 1e-6).astype(np.float32)
 
 
-def feature_normalisation(data: dict, how: str) -> tuple[np.ndarray, np.ndarray]:
+def feature_normalisation(data: dict, how: str, features: str = "mfcc") -> tuple[np.ndarray, np.ndarray]:
     """The (mean, std) the model's inputs are normalised with (saved in the model folder).
 
     ``corpus`` (the paper): each MFCC dimension by its mean and variance over the training set.
-    ``utterance``: every video's features are first normalised over the video itself (CMVN, in
-    place in ``data``; prediction does the same over the new audio), then mean 0 / std 1.
+    ``utterance``: every video's MFCC are first normalised over the video itself (CMVN, in
+    place in ``data``; prediction does the same over the new audio), then the corpus
+    normalisation as above (a no-op on CMVN'd columns; it centres and scales phone indicators).
     """
-    if how == "corpus":
-        return normalisation(data["train"])
-    if how != "utterance":
+    if how not in ("corpus", "utterance"):
         raise ParameterError(f"train.feature_norm={how!r}: choose corpus or utterance")
-    for s in data["train"] + data["val"]:
-        s["x"] = audio_features.cmvn(s["x"])
-    d = data["train"][0]["x"].shape[1]
-    return np.zeros(d, np.float32), np.ones(d, np.float32)
+    if how == "utterance":
+        for s in data["train"] + data["val"]:
+            s["x"] = front_ends.utterance_norm(s["x"], features)
+    return normalisation(data["train"])
+
+
+def vtlp_copies(data: dict, ingest_path: str, warps: list, features: str, feature_norm: str) -> float:
+    """Add ``s["x_vtlp"]`` (K, m, D) to every training video: its frames with the MFCC recomputed at
+    each VTLP factor (``audio_features.vtlp_warp``) from the stored audio; phone columns unchanged.
+    Returns the seconds spent."""
+    import time
+    from pipeline.audio_features import FEATURE_DIM, mfcc_features
+    t0 = time.perf_counter()
+    audio = open_group(ingest_path)["audio"]
+    for s in data["train"]:
+        s0, n = s["audio"]
+        samples = np.asarray(audio[s0:s0 + n], np.float32) / 32767.0
+        copies = []
+        for a in warps:
+            x = np.array(s["x"], np.float32)
+            x[:, :FEATURE_DIM] = mfcc_features(samples, warp=float(a))[:len(x)]
+            copies.append(front_ends.utterance_norm(x, features) if feature_norm == "utterance" else x)
+        s["x_vtlp"] = np.stack(copies)
+    return time.perf_counter() - t0
 
 
 def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm"):
     from stages.train import lstm
     norm = lambda s: ((s["x"] - mean) / std, s["y"], s["ok"])
-    model, history = lstm.train([norm(s) for s in data["train"]], [norm(s) for s in data["val"]], p, delay,
+
+    def norm_train(s):
+        if "x_vtlp" not in s:
+            return norm(s)
+        return (np.concatenate([s["x"][None], s["x_vtlp"]]) - mean) / std, s["y"], s["ok"]
+    model, history = lstm.train([norm_train(s) for s in data["train"]], [norm(s) for s in data["val"]], p, delay,
                                 device, seed=p.seed, desc=desc)
     preds = [lstm.predict_sequence(model, norm(s)[0], delay, device) for s in data["val"]]
     return model, history, preds
@@ -96,20 +130,30 @@ def score(preds100: list, data: dict, basis: dict, iod_px: float) -> dict:
 
 
 def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | None = None,
-        frontalize_path: str | None = None) -> dict:
+        frontalize_path: str | None = None, phonetic_path: str | None = None) -> dict:
     """Train ``train.model``; the model folder also gets the speaker (identity, 3D model, candidate
     bank, ``pipeline/speaker_bank``) when the landmarks and frontalize stores are given."""
     from pipeline.delayed_lstm import pick_device
     p = params.train
     if p.model not in MODELS:
         raise ParameterError(f"train.model={p.model!r}: choose one of {', '.join(MODELS)}")
-    data, basis, pattrs = load_sequences(ingest_path, pca_path)
+    data, basis, pattrs = load_sequences(ingest_path, pca_path, p.features, phonetic_path)
     device = pick_device(p.device)
-    mean, std = feature_normalisation(data, p.feature_norm)
-    log.info("training %s on %d videos (%d steps), validating on %d videos, device %s", p.model,
-             len(data["train"]), sum(len(s["x"]) for s in data["train"]), len(data["val"]), device)
+    mean, std = feature_normalisation(data, p.feature_norm, p.features)
+    if p.vtlp_warps:
+        if not front_ends.uses_mfcc(p.features):
+            raise ParameterError(f"train.vtlp_warps needs MFCC in train.features (got {p.features!r})")
+        bad = [a for a in p.vtlp_warps if not isinstance(a, (int, float)) or not 0.7 <= a <= 1.3]
+        if bad:
+            raise ParameterError(f"train.vtlp_warps: {bad[0]!r} is not a warp factor between 0.7 and 1.3")
+        secs = vtlp_copies(data, ingest_path, p.vtlp_warps, p.features, p.feature_norm)
+        log.info("VTLP: %d warped MFCC copies of every training video (α = %s) in %.1f s", len(p.vtlp_warps),
+                 ", ".join(f"{a:g}" for a in p.vtlp_warps), secs)
+    log.info("training %s (%s features, %d-D) on %d videos (%d steps), validating on %d videos, device %s", p.model,
+             p.features, mean.shape[0], len(data["train"]), sum(len(s["x"]) for s in data["train"]), len(data["val"]),
+             device)
     model, history, preds = fit_lstm(data, p, p.delay, device, mean, std)
-    metrics = {"model": p.model, "delay_steps": p.delay, "train_loss": history[-1]["train_loss"],
+    metrics = {"model": p.model, "features": p.features, "delay_steps": p.delay, "train_loss": history[-1]["train_loss"],
                "val_loss": history[-1]["val_loss"], "val": score(preds, data, basis, pattrs["iod_px"])}
     k = basis["components"].shape[0]
     mean_shape = np.concatenate([s["y"][s["ok"]] for s in data["train"]]).mean(0)
@@ -128,7 +172,8 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     with atomic_output(p.out) as tmp:
         save_model(tmp, model, dict(model=p.model, delay=p.delay, hidden=p.hidden, layers=p.layers,
                                     n_features=int(mean.shape[0]), n_components=k, feature_rate=100.0,
-                                    feature_norm=p.feature_norm, params=as_dict(p)), mean, std, basis, pattrs)
+                                    feature_norm=p.feature_norm, features=p.features, params=as_dict(p)),
+                   mean, std, basis, pattrs)
         if landmarks_path and frontalize_path:
             metrics["speaker"] = export_speaker(tmp, ingest_path, landmarks_path, frontalize_path,
                                                 p.bank_frames, p.identity_frames)
@@ -154,7 +199,8 @@ def write_outputs(metrics: dict, curves: dict, p: Train) -> None:
 
 
 def main(argv=None) -> int:
-    return stage_main("lipsynth train", __doc__, lambda p: run(p, p.ingest.out, p.pca.out, p.landmarks.out, p.frontalize.out),
+    return stage_main("lipsynth train", __doc__, lambda p: run(p, p.ingest.out, p.pca.out, p.landmarks.out, p.frontalize.out,
+                                                             p.phonetic.out),
                       argv)
 
 

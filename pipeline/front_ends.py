@@ -1,0 +1,72 @@
+"""Audio front ends a frame-feature model can be trained on (``train.features``).
+
+    mfcc            paper 000's 28-D MFCC (``pipeline.audio_features``) — the paper-exact choice
+    phonetic        40 pocketsphinx phone indicators (``pipeline.phone_features``): speaker-independent
+    mfcc+phonetic   both, concatenated (68-D): MFCC columns first
+
+All run at 100 Hz on the same time axis (frame t centred at t / 100 s). ``frame_features``
+computes them for new audio; the training stores hold the MFCC (ingest) and the phone
+indicators (the ``phonetic`` stage) so training reads the same numbers.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .audio_features import FEATURE_DIM as MFCC_DIM
+from .audio_features import cmvn, mfcc_features
+from .errors import ParameterError
+from .phone_features import PHONE_DIM, phone_indicators
+
+FRONT_ENDS = ("mfcc", "phonetic", "mfcc+phonetic")
+
+
+def check(front_end: str) -> None:
+    if front_end not in FRONT_ENDS:
+        raise ParameterError(f"front end {front_end!r}: choose one of {', '.join(FRONT_ENDS)}")
+
+
+def uses_mfcc(front_end: str) -> bool:
+    return front_end in ("mfcc", "mfcc+phonetic")
+
+
+def uses_phones(front_end: str) -> bool:
+    return front_end in ("phonetic", "mfcc+phonetic")
+
+
+def feature_dim(front_end: str) -> int:
+    """Width D of ``front_end``'s frames."""
+    check(front_end)
+    return MFCC_DIM * uses_mfcc(front_end) + PHONE_DIM * uses_phones(front_end)
+
+
+def combine(front_end: str, mfcc: np.ndarray | None, phones: np.ndarray | None) -> np.ndarray:
+    """(T, D) float32 frames of ``front_end`` from (T, 28) MFCC and/or (T, 40) phone indicators."""
+    check(front_end)
+    parts = ([mfcc] if uses_mfcc(front_end) else []) + ([phones] if uses_phones(front_end) else [])
+    if any(p is None for p in parts):
+        raise ParameterError(f"front end {front_end!r} needs {'MFCC and phone indicators' if len(parts) > 1 else 'its features'}")
+    n = min(len(p) for p in parts)
+    return np.concatenate([np.asarray(p[:n], np.float32) for p in parts], axis=1)
+
+
+def frame_features(samples: np.ndarray, front_end: str) -> np.ndarray:
+    """(T, D) frames of ``front_end`` for 16 kHz mono RMS-normalised ``samples``, T = 1 + S // 160."""
+    check(front_end)
+    mfcc = mfcc_features(samples) if uses_mfcc(front_end) else None
+    phones = phone_indicators(samples) if uses_phones(front_end) else None
+    return combine(front_end, mfcc, phones)
+
+
+def utterance_norm(x: np.ndarray, front_end: str) -> np.ndarray:
+    """Per-utterance CMVN of the MFCC columns (``train.feature_norm: utterance``); indicators stay 0/1."""
+    x = np.array(x, np.float32)
+    if uses_mfcc(front_end):
+        x[:, :MFCC_DIM] = cmvn(x[:, :MFCC_DIM])
+    return x
+
+
+def check_width(x: np.ndarray, front_end: str, expected: int, source: str) -> None:
+    """A model trained on ``expected``-wide frames refuses others with one clear line."""
+    if x.shape[1] != expected:
+        raise ParameterError(f"{source}: the model expects {expected}-D input frames but its front end "
+                             f"{front_end!r} gives {x.shape[1]}-D (model folder from another version or front end?)")

@@ -1,0 +1,114 @@
+"""Audio front ends (issue 13): pocketsphinx phone indicators, their combination with MFCC, and
+models that refuse another front end's frames."""
+import json
+
+import numpy as np
+import pytest
+
+from pipeline import front_ends
+from pipeline.errors import ParameterError
+from pipeline.mouth_prediction import load_audio, predict_mouth
+from pipeline.phone_features import PHONES, phone_indicators, recognize_phones
+from tests.conftest import shared
+
+
+def grid_words(name):
+    """GRID alignment: (start s, end s, word) at 25 kHz sample units."""
+    rows = [line.split() for line in shared("grid_s1", "align", f"{name}.align").read_text().splitlines() if line.strip()]
+    return [(int(a) / 25000, int(b) / 25000, w) for a, b, w in rows]
+
+
+@pytest.mark.parametrize("name", ["bgaa6n", "lrae3s"])
+def test_phones_fall_inside_words_and_silence_outside(name):
+    """Against GRID's word alignment: frames inside words are mostly recognised as phones, frames
+    in the alignment's leading / trailing silence mostly as silence."""
+    samples = load_audio(shared("grid_s1", "video", f"{name}.mp4"))
+    ind = phone_indicators(samples)
+    assert ind.shape == (1 + len(samples) // 160, len(PHONES))
+    assert (ind.sum(1) == 1).all()                               # exactly one class per frame
+    t = np.arange(len(ind)) / 100.0
+    words = grid_words(name)
+    in_word = np.zeros(len(ind), bool)
+    for a, b, w in words:
+        if w not in ("sil", "sp"):
+            in_word |= (t >= a + 0.03) & (t < b - 0.03)
+    edge_sil = (t < words[0][1] - 0.05) | (t > words[-1][0] + 0.05)
+    speech = ind[:, 0] == 0
+    assert speech[in_word].mean() > 0.9, speech[in_word].mean()
+    assert (~speech[edge_sil]).mean() > 0.8, (~speech[edge_sil]).mean()
+    # and the speech holds several different phones, not one class
+    assert len(np.unique(ind[speech].argmax(1))) >= 10
+
+
+def test_silence_and_noise_give_silence_not_a_crash():
+    assert recognize_phones(np.zeros(16000, np.float32)) == []
+    silent = phone_indicators(np.zeros(16000, np.float32))
+    assert silent.shape == (101, 40) and (silent[:, 0] == 1).all()
+    noise = phone_indicators(0.05 * np.random.default_rng(0).standard_normal(32000).astype(np.float32))
+    assert np.isfinite(noise).all() and (noise.sum(1) == 1).all()
+    assert phone_indicators(np.zeros(16000, np.float32), n_frames=50).shape == (50, 40)
+
+
+def test_combined_front_end_widths_and_utterance_norm():
+    rng = np.random.default_rng(0)
+    mfcc, phones = rng.normal(3.0, 2.0, (120, 28)).astype(np.float32), np.eye(40, dtype=np.float32)[rng.integers(0, 40, 118)]
+    x = front_ends.combine("mfcc+phonetic", mfcc, phones)
+    assert x.shape == (118, 68) == (118, front_ends.feature_dim("mfcc+phonetic"))
+    assert front_ends.feature_dim("mfcc") == 28 and front_ends.feature_dim("phonetic") == 40
+    n = front_ends.utterance_norm(x, "mfcc+phonetic")
+    assert np.allclose(n[:, :28].mean(0), 0, atol=1e-5) and np.allclose(n[:, :28].std(0), 1, atol=1e-3)
+    assert np.array_equal(n[:, 28:], x[:, 28:])                # indicators untouched
+    with pytest.raises(ParameterError, match="choose one of mfcc, phonetic, mfcc\\+phonetic"):
+        front_ends.feature_dim("lpc")
+    with pytest.raises(ParameterError, match="needs MFCC and phone indicators"):
+        front_ends.combine("mfcc+phonetic", mfcc, None)
+
+
+def test_a_model_given_another_front_ends_frames_says_so(tmp_path):
+    """A folder whose config claims one front end but whose normalisation has another width."""
+    from pipeline import delayed_lstm
+    from pipeline.model_folder import save_model
+    from stages.pca.pca import fit_pca
+    net = delayed_lstm.DelayedLSTM(28, 8, 20)
+    basis = fit_pca(np.random.default_rng(0).normal(size=(100, 36)), 20)
+    save_model(tmp_path, net, dict(model="lstm", delay=20, hidden=8, layers=1, n_features=28, n_components=20,
+                                   feature_rate=100.0, features="mfcc", params={}), np.zeros(28, np.float32),
+               np.ones(28, np.float32), basis, dict(lip_points=list(range(18)), iod_px=72.0))
+    samples = 0.1 * np.random.default_rng(1).standard_normal(16000).astype(np.float32)
+    assert predict_mouth(samples, tmp_path, 25)["coeffs"].shape == (25, 20)
+    cfg = json.loads((tmp_path / "config.json").read_text())
+    (tmp_path / "config.json").write_text(json.dumps(dict(cfg, features="mfcc+phonetic")))
+    with pytest.raises(ParameterError, match="expects 28-D input frames but its front end 'mfcc\\+phonetic' gives 68-D"):
+        predict_mouth(samples, tmp_path, 25)
+
+
+def test_vtlp_moves_a_formant_by_the_warp_factor():
+    from pipeline import audio_features as af
+    assert np.allclose(af.vtlp_warp([0, 1000, 8000], 1.0), [0, 1000, 8000])
+    f = np.linspace(0, 8000, 200)
+    for a in (0.85, 1.15):
+        w = af.vtlp_warp(f, a)
+        assert w[0] == 0 and w[-1] == pytest.approx(8000) and (np.diff(w) > 0).all()   # monotone, ends fixed
+        assert af.vtlp_warp(1000, a) == pytest.approx(1000 * a)
+    t = np.arange(16000) / 16000
+    tone = (0.3 * np.sin(2 * np.pi * 1000 * t)).astype(np.float32)
+    assert np.array_equal(af.mfcc_features(tone, warp=1.0), af.mfcc_features(tone))
+    peak = lambda a: int(np.median(af.log_mel(tone, a)[0].argmax(1)))
+    centres = af.mel_to_hz(np.linspace(0, af.hz_to_mel(8000), 42))[1:-1]
+    assert abs(centres[peak(1.15)] - 1150) < abs(centres[peak(1.15)] - 1000)   # the tone now reads as ~1150 Hz
+    assert peak(0.85) < peak(1.0) < peak(1.15)
+
+
+def test_lstm_trains_on_augmented_copies():
+    """Training sequences with K variants of x: one drawn per epoch, same shapes out."""
+    from pipeline.params import Train
+    from stages.train import lstm
+    rng = np.random.default_rng(0)
+    seqs = []
+    for _ in range(4):
+        y = rng.normal(size=(300, 3)).astype(np.float32)
+        x = np.stack([np.repeat(y, 2, 1) * s for s in (1.0, 0.9, 1.1)]).astype(np.float32)   # (3, 300, 6)
+        seqs.append((x, y, np.ones(300, bool)))
+    p = Train(hidden=16, epochs=30, batch_size=4, bptt=50, lr=0.01)
+    model, hist = lstm.train(seqs, [(s[0][0], s[1], s[2]) for s in seqs], p, 0, "cpu")
+    assert hist[-1]["val_loss"] < 0.3 * hist[0]["val_loss"], hist
