@@ -162,7 +162,9 @@ def main() -> None:
                   f"{r['best_lag']:+d}", flush=True)
         cfg = json.loads((Path(model) / "config.json").read_text())
         real = [r for r in rows if not r["clip"].startswith("synthetic/")]
-        res = dict(label=f"{Path(model).name} ({cfg.get('features', 'mfcc')}, {cfg.get('feature_norm', 'corpus')})",
+        warps = cfg.get("params", {}).get("vtlp_warps") or []
+        vtlp = f", VTLP {min(warps):g}–{max(warps):g}" if warps else ""
+        res = dict(label=f"{Path(model).name} ({cfg.get('features', 'mfcc')}, {cfg.get('feature_norm', 'corpus')}{vtlp})",
                    clips=rows, median_corr_lag0=float(np.median([r["corr_lag0"] for r in real])),
                    median_corr_best=float(np.median([r["corr_best"] for r in real])),
                    within_one_frame=float(np.mean([abs(r["best_lag"]) <= 1 for r in real])),

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from lipsynth.target import default_cache, landmarked_target, preprocess_target
-from pipeline import identity
+from pipeline import front_ends, identity
 from pipeline.errors import BadInputError, ParameterError
 from pipeline.face import IOD_MM, LIP_POINTS, interocular
 from pipeline.geometry import rotation, rotation_angle_deg
@@ -109,9 +109,24 @@ def fit_report(p: Params, target: str) -> dict:
     return rep
 
 
+def front_end_advice(config: dict) -> str:
+    """Which front end suits audio far from the training voice, for a model with ``config``
+    (measured by bench/cross_speaker.py on GRID s1 models, see the README)."""
+    features = config.get("features", "mfcc")
+    warps = (config.get("params") or {}).get("vtlp_warps") or []
+    if front_ends.uses_mfcc(features) and not warps:
+        return ("a model trained with VTLP augmentation (train.vtlp_warps, the shipped params) follows other voices "
+                "better")
+    if features == "phonetic":
+        return "this model's phone indicators do not depend on the voice, but expect the lips to lag by a few frames"
+    return "this model already has the most voice-robust front end measured; lip sync on other voices stays weaker"
+
+
 def audio_domain_check(samples, model: str, p: Params, audio: str) -> dict | None:
-    """Warn (one line) when the audio is far from the model's training audio (``pipeline.audio_domain``)."""
+    """Warn (one line) when the audio is far from the model's training audio (``pipeline.audio_domain``),
+    naming the front end that would suit it."""
     from pipeline import audio_domain, audio_features
+    from pipeline.model_folder import read_config
     record = audio_domain.load(model)
     if record is None:
         return None
@@ -119,9 +134,8 @@ def audio_domain_check(samples, model: str, p: Params, audio: str) -> dict | Non
     if res["far"]:
         log.warning("%s: this audio is far from the model's training audio (MFCC shift %.2f training std; the "
                     "speaker's own held-out clips reach %.2f, limit speak.audio_shift_factor × that = %.2f): another "
-                    "voice or microphone — expect weaker lip sync; a model trained with train.feature_norm: "
-                    "utterance (per-utterance CMVN) suits other voices better", audio, res["shift"],
-                    record["held_out_max"], res["limit"])
+                    "voice or microphone — expect weaker lip sync; %s", audio, res["shift"],
+                    record["held_out_max"], res["limit"], front_end_advice(read_config(model)))
     else:
         log.info("audio: MFCC shift %.2f training std from the model's training audio (limit %.2f)", res["shift"],
                  res["limit"])

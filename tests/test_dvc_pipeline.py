@@ -263,6 +263,14 @@ def test_phonetic_store_and_a_phonetic_model(project, tmp_path):
     assert json.loads((tmp_path / "m" / "config.json").read_text())["features"] == "mfcc+phonetic"
     out = predict_mouth(load_audio(project / "data" / "synthetic_speaker" / "speaker_01.mp4"), tmp_path / "m", 25)
     assert out["coeffs"].shape == (250, 20) and np.isfinite(out["coeffs"]).all()
+    # audio the recogniser finds no speech in (silence, noise) gives a finite mouth no more open than speech's median
+    from pipeline.face import LIP_POINTS
+    top, bottom = [LIP_POINTS.index(k) for k in (61, 62, 63)], [LIP_POINTS.index(k) for k in (67, 66, 65)]
+    opening = lambda m: (m["lip_points"][:, bottom, 1] - m["lip_points"][:, top, 1]).mean(1)
+    for quiet in (np.zeros(32000, np.float32), 0.003 * np.random.default_rng(0).standard_normal(32000).astype(np.float32)):
+        q = predict_mouth(quiet, tmp_path / "m", 25)
+        assert np.isfinite(q["lip_points"]).all()
+        assert np.median(opening(q)) <= np.median(opening(out)) + 0.2, (np.median(opening(q)), np.median(opening(out)))
 
 
 @pytest.mark.slow

@@ -112,3 +112,11 @@ def test_lstm_trains_on_augmented_copies():
     p = Train(hidden=16, epochs=30, batch_size=4, bptt=50, lr=0.01)
     model, hist = lstm.train(seqs, [(s[0][0], s[1], s[2]) for s in seqs], p, 0, "cpu")
     assert hist[-1]["val_loss"] < 0.3 * hist[0]["val_loss"], hist
+
+
+def test_speak_names_the_front_end_that_suits_another_voice():
+    from lipsynth.speak import front_end_advice
+    assert "train.vtlp_warps" in front_end_advice(dict(features="mfcc", params=dict(vtlp_warps=[])))
+    assert "train.vtlp_warps" in front_end_advice(dict(features="mfcc+phonetic"))
+    assert "train.vtlp_warps" not in front_end_advice(dict(features="mfcc", params=dict(vtlp_warps=[0.9, 1.1])))
+    assert "phone indicators" in front_end_advice(dict(features="phonetic", params=dict(vtlp_warps=[])))
