@@ -134,9 +134,9 @@ class Train:
     lr: float = 0.001
     epochs: int = 300
     baselines: bool = True
-    feature_norm: str = "corpus"
+    feature_norm: str = "utterance"
     features: str = "mfcc"
-    vtlp_warps: list = field(default_factory=list)
+    vtlp_warps: list = field(default_factory=lambda: [0.85, 0.92, 1.08, 1.15])
     seed: int = 0
     device: str = "auto"
     bank_frames: int = 3000
