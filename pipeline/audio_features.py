@@ -134,3 +134,29 @@ def cmvn(features: np.ndarray) -> np.ndarray:
     every dimension zero-mean, unit-variance over the T frames."""
     x = np.asarray(features, np.float64)
     return ((x - x.mean(0)) / np.maximum(x.std(0), 1e-6)).astype(np.float32)
+
+
+def pitch_shifted_mfcc(samples: np.ndarray, semitones: float) -> np.ndarray:
+    """28-D MFCC (as ``mfcc_features``) of the audio with its pitch shifted by ``semitones`` and its
+    formants and timing kept — an augmentation for training (``train.pitch_shifts``).
+
+    The audio is resampled by r = 2^(semitones/12) (pitch, formants and tempo all × r); the mel
+    filterbank then reads the spectrum through ``vtlp_warp`` with α = 1/r, which moves the
+    formants back (exactly below the warp's knee), and the static cepstra are interpolated back
+    onto the original 10 ms frame times before the deltas are taken. Returns (1 + S // 160, 28).
+    """
+    from scipy.signal import resample_poly
+    from fractions import Fraction
+    x = np.asarray(samples, np.float64)
+    r = 2.0 ** (semitones / 12.0)
+    q = Fraction(r).limit_denominator(200)                   # r ≈ p / q: 16 kHz audio read r× faster
+    y = resample_poly(x, q.denominator, q.numerator)
+    mel, energy = log_mel(y.astype(np.float32), warp=1.0 / r)
+    ceps = scipy.fft.dct(mel, type=2, norm="ortho", axis=1)[:, :N_CEPS]
+    static = np.concatenate([ceps, energy[:, None]], axis=1)             # frames at t' = k / 100 s of y
+    n = 1 + len(x) // HOP
+    t_new = np.arange(len(static)) / 100.0 * (q.numerator / q.denominator)   # the same instants in x's time
+    t = np.arange(n) / 100.0
+    back = np.stack([np.interp(t, t_new, static[:, j]) for j in range(static.shape[1])], axis=1)
+    return np.concatenate([back, delta(back)], axis=1).astype(np.float32)
+

@@ -89,23 +89,27 @@ def feature_normalisation(data: dict, how: str, features: str = "mfcc") -> tuple
     return normalisation(data["train"])
 
 
-def vtlp_copies(data: dict, ingest_path: str, warps: list, features: str, feature_norm: str) -> float:
-    """Add ``s["x_vtlp"]`` (K, m, D) to every training video: its frames with the MFCC recomputed at
-    each VTLP factor (``audio_features.vtlp_warp``) from the stored audio; phone columns unchanged.
-    Returns the seconds spent."""
+def augmented_copies(data: dict, ingest_path: str, warps: list, shifts: list, features: str,
+                     feature_norm: str) -> float:
+    """Add ``s["x_aug"]`` (K, m, D) to every training video: its frames with the MFCC recomputed from
+    the stored audio at each VTLP factor (``audio_features.vtlp_warp``) and each pitch shift in
+    semitones (``audio_features.pitch_shifted_mfcc``: formants and timing kept); phone columns
+    unchanged. Returns the seconds spent."""
     import time
-    from pipeline.audio_features import FEATURE_DIM, mfcc_features
+    from pipeline.audio_features import FEATURE_DIM, mfcc_features, pitch_shifted_mfcc
     t0 = time.perf_counter()
     audio = open_group(ingest_path)["audio"]
+    makers = [lambda x, a=a: mfcc_features(x, warp=float(a)) for a in warps] + \
+             [lambda x, st=st: pitch_shifted_mfcc(x, float(st)) for st in shifts]
     for s in data["train"]:
         s0, n = s["audio"]
         samples = np.asarray(audio[s0:s0 + n], np.float32) / 32767.0
         copies = []
-        for a in warps:
+        for make in makers:
             x = np.array(s["x"], np.float32)
-            x[:, :FEATURE_DIM] = mfcc_features(samples, warp=float(a))[:len(x)]
+            x[:, :FEATURE_DIM] = make(samples)[:len(x)]
             copies.append(front_ends.utterance_norm(x, features) if feature_norm == "utterance" else x)
-        s["x_vtlp"] = np.stack(copies)
+        s["x_aug"] = np.stack(copies)
     return time.perf_counter() - t0
 
 
@@ -114,9 +118,9 @@ def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm"):
     norm = lambda s: ((s["x"] - mean) / std, s["y"], s["ok"])
 
     def norm_train(s):
-        if "x_vtlp" not in s:
+        if "x_aug" not in s:
             return norm(s)
-        return (np.concatenate([s["x"][None], s["x_vtlp"]]) - mean) / std, s["y"], s["ok"]
+        return (np.concatenate([s["x"][None], s["x_aug"]]) - mean) / std, s["y"], s["ok"]
     model, history = lstm.train([norm_train(s) for s in data["train"]], [norm(s) for s in data["val"]], p, delay,
                                 device, seed=p.seed, desc=desc)
     preds = [lstm.predict_sequence(model, norm(s)[0], delay, device) for s in data["val"]]
@@ -140,15 +144,19 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     data, basis, pattrs = load_sequences(ingest_path, pca_path, p.features, phonetic_path)
     device = pick_device(p.device)
     mean, std = feature_normalisation(data, p.feature_norm, p.features)
-    if p.vtlp_warps:
+    if p.vtlp_warps or p.pitch_shifts:
         if not front_ends.uses_mfcc(p.features):
-            raise ParameterError(f"train.vtlp_warps needs MFCC in train.features (got {p.features!r})")
+            raise ParameterError(f"train.vtlp_warps / train.pitch_shifts augment MFCC: train.features={p.features!r} has none")
         bad = [a for a in p.vtlp_warps if not isinstance(a, (int, float)) or not 0.7 <= a <= 1.3]
         if bad:
             raise ParameterError(f"train.vtlp_warps: {bad[0]!r} is not a warp factor between 0.7 and 1.3")
-        secs = vtlp_copies(data, ingest_path, p.vtlp_warps, p.features, p.feature_norm)
-        log.info("VTLP: %d warped MFCC copies of every training video (α = %s) in %.1f s", len(p.vtlp_warps),
-                 ", ".join(f"{a:g}" for a in p.vtlp_warps), secs)
+        bad = [a for a in p.pitch_shifts if not isinstance(a, (int, float)) or not -12 <= a <= 12]
+        if bad:
+            raise ParameterError(f"train.pitch_shifts: {bad[0]!r} is not a shift between -12 and 12 semitones")
+        secs = augmented_copies(data, ingest_path, p.vtlp_warps, p.pitch_shifts, p.features, p.feature_norm)
+        log.info("augmentation: %d VTLP copies (α = %s) and %d pitch-shifted copies (%s semitones) of every training "
+                 "video in %.1f s", len(p.vtlp_warps), ", ".join(f"{a:g}" for a in p.vtlp_warps) or "-",
+                 len(p.pitch_shifts), ", ".join(f"{a:+g}" for a in p.pitch_shifts) or "-", secs)
     log.info("training %s (%s features, %d-D) on %d videos (%d steps), validating on %d videos, device %s", p.model,
              p.features, mean.shape[0], len(data["train"]), sum(len(s["x"]) for s in data["train"]), len(data["val"]),
              device)
