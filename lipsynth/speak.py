@@ -115,8 +115,8 @@ def front_end_advice(config: dict) -> str:
     features = config.get("features", "mfcc")
     warps = (config.get("params") or {}).get("vtlp_warps") or []
     if front_ends.uses_mfcc(features) and not warps:
-        return ("a model trained with VTLP augmentation (train.vtlp_warps, the shipped params) follows other voices "
-                "better")
+        return ("a model trained with the shipped augmentation (train.vtlp_warps, train.pitch_shifts, "
+                "train.feature_norm: utterance) follows other voices better")
     if features == "phonetic":
         return "this model's phone indicators do not depend on the voice, but expect the lips to lag by a few frames"
     return "this model already has the most voice-robust front end measured; lip sync on other voices stays weaker"

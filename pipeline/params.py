@@ -137,7 +137,7 @@ class Train:
     feature_norm: str = "utterance"
     features: str = "mfcc"
     vtlp_warps: list = field(default_factory=lambda: [0.85, 0.92, 1.08, 1.15])
-    pitch_shifts: list = field(default_factory=list)
+    pitch_shifts: list = field(default_factory=lambda: [-4, -2, 2, 4])
     seed: int = 0
     device: str = "auto"
     bank_frames: int = 3000
