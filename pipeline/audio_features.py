@@ -105,6 +105,13 @@ def delta(x: np.ndarray, width: int = 2) -> np.ndarray:
     return num / (2 * sum(k * k for k in range(1, width + 1)))
 
 
+def static_cepstra(samples: np.ndarray, warp: float = 1.0) -> np.ndarray:
+    """(T, 14): 13 MFCC (DCT-II of the log mel energies) and the log mean energy per 10 ms frame."""
+    mel, energy = log_mel(samples, warp)
+    ceps = scipy.fft.dct(mel, type=2, norm="ortho", axis=1)[:, :N_CEPS]
+    return np.concatenate([ceps, energy[:, None]], axis=1)
+
+
 def mfcc_features(samples: np.ndarray, sample_rate: int = SAMPLE_RATE, warp: float = 1.0) -> np.ndarray:
     """28-D features at 100 Hz: 13 MFCC, log mean energy, and their deltas.
 
@@ -123,9 +130,7 @@ def mfcc_features(samples: np.ndarray, sample_rate: int = SAMPLE_RATE, warp: flo
         raise ParameterError(f"mfcc_features expects {SAMPLE_RATE} Hz audio, got {sample_rate} Hz (resample first)")
     if samples.ndim != 1:
         raise ParameterError(f"mfcc_features expects mono (S,) audio, got shape {samples.shape}")
-    mel, energy = log_mel(samples, warp)
-    ceps = scipy.fft.dct(mel, type=2, norm="ortho", axis=1)[:, :N_CEPS]
-    static = np.concatenate([ceps, energy[:, None]], axis=1)
+    static = static_cepstra(samples, warp)
     return np.concatenate([static, delta(static)], axis=1).astype(np.float32)
 
 
@@ -151,9 +156,7 @@ def pitch_shifted_mfcc(samples: np.ndarray, semitones: float) -> np.ndarray:
     r = 2.0 ** (semitones / 12.0)
     q = Fraction(r).limit_denominator(200)                   # r ≈ p / q: 16 kHz audio read r× faster
     y = resample_poly(x, q.denominator, q.numerator)
-    mel, energy = log_mel(y.astype(np.float32), warp=1.0 / r)
-    ceps = scipy.fft.dct(mel, type=2, norm="ortho", axis=1)[:, :N_CEPS]
-    static = np.concatenate([ceps, energy[:, None]], axis=1)             # frames at t' = k / 100 s of y
+    static = static_cepstra(y.astype(np.float32), warp=1.0 / r)          # frames at t' = k / 100 s of y
     n = 1 + len(x) // HOP
     t_new = np.arange(len(static)) / 100.0 * (q.numerator / q.denominator)   # the same instants in x's time
     t = np.arange(n) / 100.0

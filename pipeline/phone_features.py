@@ -9,7 +9,7 @@ the phone language model (allphone search, batch cepstral mean normalisation);
 best path and no lattice, so each frame carries its recognised phone with weight 1 — phone-class
 indicators, not posteriors. Fillers (noise, breath, unknown) count as silence.
 
-Cost: ≈ 45 ms of one core per second of audio (bench/front_ends.py).
+Cost: 42–55 ms of one core per second of audio (``bench/cross_speaker.py`` prints it).
 """
 from __future__ import annotations
 
