@@ -19,6 +19,7 @@ COMMANDS = {
     "train-karras": ("stages.train_karras.train_karras", "Karras et al. (paper 001): autocorrelation conv net with learned emotions → models/karras"),
     "emotions": ("lipsynth.emotions", "list the mined emotion vectors of a Karras model (for --emotion K or K1:K2:t)"),
     "delay-sweep": ("stages.train.sweep", "validation loss of the LSTM for several target delays → plots/"),
+    "ensemble": ("lipsynth.ensemble", "average several trained models of one speaker into one model folder"),
     "predict-mouth": ("lipsynth.predict_mouth", "per-frame mouth shapes for an audio file from a model folder"),
     "synthesize": ("stages.synthesize.synthesize", "new audio → re-timed lower-face textures → store/synthesize.zarr"),
     "composite": ("stages.composite.composite", "synthesized textures into the target video → outputs/…/result.mp4"),

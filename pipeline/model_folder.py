@@ -14,7 +14,11 @@
                           emotion_candidates (K, E) mined from the emotion database,
                           emotion_database (N, E) (one learned vector per training frame)
 
-Both may also hold their speaker (speaker.npz, bank.zarr; ``pipeline/speaker_bank``).
+    models/<name>/ (an ensemble, ``pipeline.model_ensemble``)
+        config.json       family "ensemble", member paths, shared PCA fingerprint
+        members/<k>/      each member's own files (any family above)
+
+All may also hold their speaker (speaker.npz, bank.zarr; ``pipeline/speaker_bank``).
 """
 from __future__ import annotations
 
@@ -27,7 +31,8 @@ from pipeline.errors import LipsynthError
 from pipeline.mouth_pca import fingerprint
 
 FILES = ("weights.pt", "config.json", "arrays.npz")
-FAMILY_FILES = {"lstm": FILES, "brand": ("config.json", "arrays.npz"), "karras": FILES}
+FAMILY_FILES = {"lstm": FILES, "brand": ("config.json", "arrays.npz"), "karras": FILES,
+                "ensemble": ("config.json", "members")}
 
 
 class ModelError(LipsynthError):
@@ -68,6 +73,9 @@ def check_model(folder) -> dict:
         load_puppet(folder)
     elif config["model"] == "karras":
         load_karras(folder)
+    elif config["model"] == "ensemble":
+        from pipeline.model_ensemble import check
+        check(folder)
     else:
         load_model(folder)
     return config
