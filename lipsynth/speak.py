@@ -229,7 +229,8 @@ def main(argv=None) -> int:
     ap.add_argument("--audio", required=True, help="new speech: any audio or video file (any rate, channels)")
     ap.add_argument("--target", required=True, help="video of the speaker to put the speech into")
     ap.add_argument("--out", required=True, help="output MP4 (replaced only when the run succeeds)")
-    ap.add_argument("--model", default=None, help="model folder (default: synthesize.model of the params file)")
+    ap.add_argument("--model", default=None, help="model folder of any family, or an ensemble of them (`lipsynth "
+                    "ensemble`); default: synthesize.model of the params file")
     ap.add_argument("--no-retime", action="store_true",
                     help="keep the target's timing (paper §3.3 off; for evaluation against ground truth)")
     ap.add_argument("--diagnostic", action="store_true",
