@@ -36,12 +36,23 @@ def member_folders(folder) -> list[Path]:
     return [Path(folder) / m for m in read_config(folder)["members"]]
 
 
-def check(folder) -> dict:
-    """Check every member (any family) and that they agree; returns the ensemble's config.
+def check_members(members: list, configs: list[dict], fingerprint: str) -> None:
+    """Raise ModelError naming the first member that is itself an ensemble or has another PCA basis."""
+    from pipeline.model_folder import ModelError
+    for m, cfg in zip(members, configs):
+        if cfg["model"] == "ensemble":
+            raise ModelError(f"{m}: is itself an ensemble (give its members instead)")
+        if cfg["pca_fingerprint"] != fingerprint:
+            raise ModelError(f"{m}: PCA basis {cfg['pca_fingerprint']} differs from the ensemble's {fingerprint}: "
+                             "members must be trained on one store")
 
-    Raises ModelError naming the member that is broken or belongs to another basis or speaker.
+
+def check(folder) -> dict:
+    """Check every member (any family) and that they share the ensemble's PCA basis; its config.
+
+    Raises ModelError naming the member that is missing, broken or of another basis.
     """
-    from pipeline.model_folder import ModelError, check_model, load_speaker, read_config
+    from pipeline.model_folder import ModelError, check_model, read_config
     config = read_config(folder)
     members = member_folders(folder)
     if len(members) < 2:
@@ -49,12 +60,7 @@ def check(folder) -> dict:
     for m in members:
         if not m.is_dir():
             raise ModelError(f"{folder}: member {m} is missing")
-        cfg = check_model(m)
-        if cfg["model"] == "ensemble":
-            raise ModelError(f"{folder}: member {m} is itself an ensemble (list its members instead)")
-        if cfg["pca_fingerprint"] != config["pca_fingerprint"]:
-            raise ModelError(f"{folder}: member {m} has PCA basis {cfg['pca_fingerprint']}, the ensemble "
-                             f"{config['pca_fingerprint']}: members must be trained on one store")
+    check_members(members, [check_model(m) for m in members], config["pca_fingerprint"])
     return config
 
 
@@ -77,12 +83,7 @@ def write(out, members: list) -> dict:
         raise ParameterError(f"an ensemble needs at least 2 model folders, got {len(members)}")
     out = Path(out)
     configs = [check_model(m) for m in members]
-    for m, cfg in zip(members, configs):
-        if cfg["model"] == "ensemble":
-            raise ModelError(f"{m}: is itself an ensemble (give its members instead)")
-        if cfg["pca_fingerprint"] != configs[0]["pca_fingerprint"]:
-            raise ModelError(f"{m}: PCA basis {cfg['pca_fingerprint']} differs from {members[0]}'s "
-                             f"{configs[0]['pca_fingerprint']}: members must be trained on one store")
+    check_members(members, configs, configs[0]["pca_fingerprint"])
     speaker = load_speaker(members[0])
     for m in members[1:]:
         if not same_speaker(speaker, load_speaker(m)):

@@ -3,7 +3,8 @@
 ``predict_mouth(load_audio(path), model_dir, fps)`` is what ``synthesize``, ``lipsynth speak``
 and ``lipsynth predict-mouth`` call, whatever family the folder holds: ``lstm`` (below) or
 ``brand`` (Voice Puppetry, ``pipeline.voice_puppet``: Viterbi on its own voice features, the
-closed-form trajectory at ``fps``) or ``ensemble`` (the mean of its members' outputs, ``pipeline.model_ensemble``) or ``karras`` (Karras et al., ``pipeline.karras_inference``:
+closed-form trajectory at ``fps``) or ``ensemble`` (the mean of its members' outputs,
+``pipeline.model_ensemble``) or ``karras`` (Karras et al., ``pipeline.karras_inference``:
 autocorrelation windows at the frame times, two inferences 4 ms apart, a constant or interpolated
 emotion vector — ``emotion``; its output also has ``face_points``, the whole lower face). The audio is any file PyAV reads (wav, mp3, m4a, the audio
 of a video...), any rate and channel count: it is mixed to mono, resampled to 16 kHz, RMS-normalised and turned into the model's
