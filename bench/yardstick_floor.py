@@ -39,17 +39,14 @@ def reencode(src: str, out: str, crf: int) -> None:
     """Decode ``src`` and write its frames and audio again as H.264 (+ AAC) at ``crf``."""
     from pipeline import media
     audio, _ = media.read_audio(src, 48000)
-    with media.VideoWriter(out, media.probe(src).fps, crf, "veryfast", audio, 48000) as w:
-        for _, frame in media.iter_frames(src):
-            w.write(frame)
+    media.write_video(out, (frame for _, frame in media.iter_frames(src)), media.probe(src).fps, audio, 48000, crf)
 
 
-def params_with(overrides: dict, folder: Path) -> str:
-    """A copy of params.yaml with ``{section: {key: value}}`` overrides; returns its path."""
+def params_with(overrides: dict, path: Path) -> str:
+    """Write params.yaml with ``{section: {key: value}}`` overrides to ``path``; returns it."""
     tree = yaml.safe_load((ROOT / "params.yaml").read_text())
     for section, values in overrides.items():
         tree[section].update(values)
-    path = folder / f"params_{abs(hash(json.dumps(overrides, sort_keys=True)))}.yaml"
     path.write_text(yaml.safe_dump(tree, sort_keys=False))
     return str(path)
 
@@ -59,11 +56,12 @@ def commands(model: str, crf: int, cache: str, folder: Path) -> dict:
     oracle = f"{py} bench/speak_oracle.py --model {model} --audio {{audio}} --target {{target}} --out {{out}} --cache {cache}"
     speak = (f"{py} -m lipsynth.cli speak --model {model} --audio {{audio}} --target {{target}} --out {{out}} "
              f"--no-retime --cache {cache}")
-    at_crf = params_with({"composite": {"crf": crf}}, folder)
+    at_crf = params_with({"composite": {"crf": crf}}, folder / "params_crf.yaml")
+    one_candidate = params_with({"composite": {"crf": crf}, "synthesize": {"n": 1}}, folder / "params_own.yaml")
     return {
         "reencode_lossless": f"{py} bench/yardstick_floor.py reencode {{target}} {{out}} --crf 0",
         "reencode_crf": f"{py} bench/yardstick_floor.py reencode {{target}} {{out}} --crf {crf}",
-        "own_texture": f"{oracle} --params {params_with({'composite': {'crf': crf}, 'synthesize': {'n': 1}}, folder)}",
+        "own_texture": f"{oracle} --params {one_candidate}",
         "oracle": f"{oracle} --params {at_crf}",
         "model": f"{speak} --params {at_crf}",
     }
@@ -90,13 +88,18 @@ def main() -> int:
     if not YARDSTICK.is_file():
         raise SystemExit(f"{YARDSTICK}: the yardstick is not there (../shared/tools beside the project)")
     rows = [r for r in a.rows.split(",") if r]
+    unknown = [r for r in rows if r not in ROWS]
+    if unknown:
+        raise SystemExit(f"--rows: unknown {', '.join(unknown)} (choose from {', '.join(ROWS)})")
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         cmds = commands(a.model, a.crf, a.cache, Path(tmp))
         for row in rows:
             js = Path(tmp) / f"{row}.json"
-            subprocess.run([sys.executable, str(YARDSTICK), "--make", cmds[row], "--json", str(js), *a.clips],
-                           cwd=ROOT, capture_output=True, text=True)
+            r = subprocess.run([sys.executable, str(YARDSTICK), "--make", cmds[row], "--json", str(js), *a.clips],
+                               cwd=ROOT, capture_output=True, text=True)
+            if not js.is_file():
+                raise SystemExit(f"{row}: the yardstick wrote nothing (rc {r.returncode}): {r.stderr.strip()[-500:]}")
             res = json.loads(js.read_text())
             results[row] = res
             s = res["summary"]
