@@ -23,9 +23,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline import vocal_features, voice_puppet  # noqa: E402
-from pipeline.model_folder import load_puppet  # noqa: E402
-from pipeline.mouth_prediction import load_audio  # noqa: E402
+from pipeline.models import voice_puppet  # noqa: E402
+from pipeline.audio import vocal_features
+from pipeline.models.model_folder import load_puppet  # noqa: E402
+from pipeline.models.mouth_prediction import load_audio  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 
 DEFAULT_AUDIO = sorted((ROOT.parent / "shared/data/hdtf").glob("*.wav"))[:2] + \

@@ -32,9 +32,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.face import LIP_POINTS  # noqa: E402
-from pipeline.lipsync_measures import best_lag  # noqa: E402
-from pipeline.mouth_prediction import load_audio, predict_mouth  # noqa: E402
+from pipeline.face.dlib_face import LIP_POINTS  # noqa: E402
+from pipeline.measures.lipsync_measures import best_lag  # noqa: E402
+from pipeline.models.mouth_prediction import load_audio, predict_mouth  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 RESULTS = ROOT / "bench" / "results"
@@ -54,7 +54,7 @@ def real_clips() -> list[tuple[str, Path]]:
 def tracked_truth(clip: Path, cache: Path) -> dict:
     """Tracked inner-lip opening / IOD per frame, validity and fps of a real clip (cached)."""
     from lipsynth import lipsync_quality as quality
-    from pipeline import media
+    from pipeline.io import media
     from pipeline.params import load_params
     f = cache / f"{clip.parent.name}_{clip.stem}.npz"
     if f.exists():
@@ -98,7 +98,7 @@ def predicted_opening(samples: np.ndarray, model: str, fps: float) -> np.ndarray
 
 def front_end_cost(repeats: int = 5) -> dict:
     """ms of one core per second of audio for each front end (median of ``repeats``)."""
-    from pipeline import front_ends
+    from pipeline.audio import front_ends
     samples = load_audio(SHARED / "grid_s1" / "video" / "bgaa6n.mp4") if (SHARED / "grid_s1").exists() else \
         synthetic_clip(SYNTH_SEEDS[0])["audio"]
     seconds = len(samples) / 16000

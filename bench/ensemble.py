@@ -5,8 +5,8 @@
 
 Each folder predicts every validation video of the store (the shared predict path at the video's
 fps); an ensemble's prediction is the mean of its members' coefficients, exactly what an
-`lipsynth ensemble` folder does (``pipeline.model_ensemble.average``). Scored against the tracked
-mouth PCA with ``pipeline.mouth_metrics`` (the same figures as bench/karras_grid.py). Prints one line
+`lipsynth ensemble` folder does (``pipeline.models.model_ensemble.average``). Scored against the tracked
+mouth PCA with ``pipeline.measures.mouth_metrics`` (the same figures as bench/karras_grid.py). Prints one line
 per combination and writes a plot of error against ensemble size next to the JSON.
 """
 from __future__ import annotations
@@ -23,9 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from karras_grid import score                                           # noqa: E402
-from pipeline.mouth_prediction import predict_mouth                    # noqa: E402
+from pipeline.models.mouth_prediction import predict_mouth                    # noqa: E402
 from pipeline.params import load_params                                 # noqa: E402
-from pipeline.store import open_group                                   # noqa: E402
+from pipeline.io.store import open_group                                   # noqa: E402
 
 
 def main() -> int:

@@ -20,8 +20,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.karras_network import KarrasNetwork, multiply_adds  # noqa: E402
-from pipeline.speech_autocorrelation import autocorrelation_features  # noqa: E402
+from pipeline.models.karras_network import KarrasNetwork, multiply_adds  # noqa: E402
+from pipeline.audio.speech_autocorrelation import autocorrelation_features  # noqa: E402
 
 
 def timed(fn, repeats: int) -> float:

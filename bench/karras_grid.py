@@ -5,9 +5,9 @@ jitter.
     .venv/bin/python bench/karras_grid.py [--params runs/grid_s1/params.yaml] [--karras DIR ...]
                                           [--lstm-same-minutes] [--out bench/results/karras_grid.json]
 
-Every model is scored by the shared predict path (``pipeline.mouth_prediction.predict_mouth``) at
+Every model is scored by the shared predict path (``pipeline.models.mouth_prediction.predict_mouth``) at
 each validation video's frame rate against the store's tracked mouth PCA (valid frames), with
-``pipeline.mouth_metrics`` (mouth error, opening correlation at lag 0, share of clips whose best
+``pipeline.measures.mouth_metrics`` (mouth error, opening correlation at lag 0, share of clips whose best
 lag is within one frame). Jitter: median over clips of the mean |second difference| of the
 predicted inner-lip opening (px/frame²), and the same for the tracked mouth.
 ``--lstm-same-minutes`` trains the paper-000 LSTM (train params, delay 200 ms) on exactly the
@@ -26,9 +26,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline import mouth_metrics                                      # noqa: E402
-from pipeline.mouth_pca import reconstruct                              # noqa: E402
-from pipeline.mouth_prediction import predict_mouth, to_frames         # noqa: E402
+from pipeline.measures import mouth_metrics  # noqa: E402
+from pipeline.models.mouth_pca import reconstruct                              # noqa: E402
+from pipeline.models.mouth_prediction import predict_mouth, to_frames         # noqa: E402
 from pipeline.params import load_params                                 # noqa: E402
 
 
@@ -74,11 +74,11 @@ def main() -> int:
     a = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     from stages.train.train import feature_normalisation, fit_lstm, load_sequences
-    from pipeline.delayed_lstm import pick_device
+    from pipeline.models.delayed_lstm import pick_device
     p = load_params(a.params)
     data, basis, attrs = load_sequences(p.ingest.out, p.pca.out)
     iod = attrs["iod_px"]
-    from pipeline.store import open_group
+    from pipeline.io.store import open_group
     src = open_group(p.ingest.out)
     audio = {}
     for v in src.attrs["videos"]:
@@ -100,8 +100,8 @@ def main() -> int:
                                                                                    ("motion", "emotions", "time_shift")},
                           epochs=cfg["params"]["epochs"])
         if i == 0 and a.no_ensemble:
-            from pipeline import karras_inference
-            from pipeline.model_folder import load_karras
+            from pipeline.models import karras_inference
+            from pipeline.models.model_folder import load_karras
             model = load_karras(folder)
             preds = [karras_inference.predict(audio[s["name"]], model, s["fps"], ensemble=False)["coeffs"]
                      for s in data["val"]]

@@ -25,12 +25,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline import media  # noqa: E402
-from pipeline.canonical import Surface, TextureWindow, frontal_landmarks  # noqa: E402
-from pipeline.face import IOD_MM, LIP_POINTS  # noqa: E402
-from pipeline.geometry import intrinsics, solve_pose  # noqa: E402
+from pipeline.io import media  # noqa: E402
+from pipeline.face.canonical import Surface, TextureWindow, frontal_landmarks  # noqa: E402
+from pipeline.face.dlib_face import IOD_MM, LIP_POINTS  # noqa: E402
+from pipeline.face.geometry import intrinsics, solve_pose  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
-from pipeline.store import open_group  # noqa: E402
+from pipeline.io.store import open_group  # noqa: E402
 from stages.frontalize import model3d  # noqa: E402
 from stages.ingest.ingest import cut_crop  # noqa: E402
 from stages.landmarks.landmarks import track_video  # noqa: E402

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline.params import load_params  # noqa: E402
-from pipeline.store import stored_bytes  # noqa: E402
+from pipeline.io.store import stored_bytes  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 STAGES = ("ingest", "landmarks", "frontalize")

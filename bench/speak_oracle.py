@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from lipsynth import speak as speak_app
-from pipeline.face import LIP_POINTS
+from pipeline.face.dlib_face import LIP_POINTS
 from pipeline.params import load_params
-from pipeline.runner import run_main, setup_logging
+from pipeline.io.runner import run_main, setup_logging
 from stages.synthesize import synthesize
 
 

@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from lipsynth import lipsync_quality as quality  # noqa: E402
 from pipeline.params import check, load_params  # noqa: E402
-from pipeline.runner import setup_logging  # noqa: E402
+from pipeline.io.runner import setup_logging  # noqa: E402
 from lipsynth.speak import speak  # noqa: E402
 from stages.composite import composite  # noqa: E402
 from stages.synthesize import synthesize  # noqa: E402
@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def strip(original: Path, output: Path, box, frames=(10, 25, 40, 55)) -> np.ndarray:
     """Mouth crops of the original (top) and output (bottom) at a few frames, ×3."""
-    from pipeline import media
+    from pipeline.io import media
     rows = []
     for path in (original, output):
         imgs = {i: f for i, (_, f) in enumerate(media.iter_frames(path)) if i in frames}

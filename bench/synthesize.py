@@ -36,8 +36,8 @@ sys.path.insert(0, str(ROOT))
 
 from lipsynth.target import preprocess_target  # noqa: E402
 from pipeline.params import Params, load_params  # noqa: E402
-from pipeline.runner import setup_logging  # noqa: E402
-from pipeline.store import open_group  # noqa: E402
+from pipeline.io.runner import setup_logging  # noqa: E402
+from pipeline.io.store import open_group  # noqa: E402
 from stages.composite import composite  # noqa: E402
 from stages.synthesize import synthesize  # noqa: E402
 

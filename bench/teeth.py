@@ -23,7 +23,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline import face, media  # noqa: E402
+from pipeline.io import media  # noqa: E402
+from pipeline.face import dlib_face
 
 
 def teeth_measures(path) -> dict:
@@ -33,11 +34,11 @@ def teeth_measures(path) -> dict:
     for k, (_, rgb) in enumerate(media.iter_frames(path)):
         gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         if box is None or k % 10 == 0:
-            found = face.detect_face(gray, 1)
+            found = dlib_face.detect_face(gray, 1)
             box = None if found is None else found[0]
         if box is None:
             continue
-        lm = face.predict_landmarks(gray, box)
+        lm = dlib_face.predict_landmarks(gray, box)
         inner = np.round(lm[60:68]).astype(np.int32)
         mask = np.zeros(gray.shape, np.uint8)
         cv2.fillPoly(mask, [inner], 1)

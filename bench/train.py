@@ -21,9 +21,9 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.delayed_lstm import DelayedLSTM, pick_device  # noqa: E402
-from pipeline.model_folder import save_model  # noqa: E402
-from pipeline.mouth_prediction import predict_mouth  # noqa: E402
+from pipeline.models.delayed_lstm import DelayedLSTM, pick_device  # noqa: E402
+from pipeline.models.model_folder import save_model  # noqa: E402
+from pipeline.models.mouth_prediction import predict_mouth  # noqa: E402
 from pipeline.params import as_dict, load_params  # noqa: E402
 from stages.pca.pca import fit_pca  # noqa: E402
 from stages.train import lstm  # noqa: E402

@@ -37,7 +37,7 @@ ROWS = ["reencode_lossless", "reencode_crf", "own_texture", "oracle", "model"]
 
 def reencode(src: str, out: str, crf: int) -> None:
     """Decode ``src`` and write its frames and audio again as H.264 (+ AAC) at ``crf``."""
-    from pipeline import media
+    from pipeline.io import media
     audio, _ = media.read_audio(src, 48000)
     media.write_video(out, (frame for _, frame in media.iter_frames(src)), media.probe(src).fps, audio, 48000, crf)
 

@@ -11,9 +11,12 @@ tuple; their closures are deps too.
     lipsynth dvc-deps            # print the stages whose code deps differ from dvc.yaml
     lipsynth dvc-deps --write    # rewrite the code deps in dvc.yaml (data deps are kept)
 
-It also checks the layers (``check_layers``): ``pipeline`` imports no stage and no application;
+It also checks the layers (``layer_violations``): ``pipeline`` imports no stage and no application;
 a stage imports only ``pipeline`` and its own folder; only ``lipsynth`` (the applications) may
-import across stages.
+import across stages. Inside ``pipeline`` the rooms are ranked (``PIPELINE_ROOMS``): a module
+imports its own room and rooms of lower rank only (``io`` never imports ``models``; ``face`` and
+``audio`` never import each other), and no project modules import each other in a circle
+(``import_cycles``).
 """
 from __future__ import annotations
 
@@ -26,6 +29,17 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT_PACKAGES = ("pipeline", "stages", "lipsynth")
 CODE_DEP = re.compile(r"^(pipeline|stages|lipsynth)/.*\.py$")
+# pipeline's rooms and their rank: a module may import its own room and lower ranks only.
+# "" = the modules at pipeline/'s top (params, errors) that every room uses.
+PIPELINE_ROOMS = {"": 0, "io": 1, "face": 2, "audio": 2, "video": 2, "models": 3, "measures": 4}
+
+
+def pipeline_room(module: str) -> str | None:
+    """``pipeline.models.x`` → "models", ``pipeline.params`` → "", a non-pipeline module → None."""
+    parts = module.split(".")
+    if parts[0] != "pipeline":
+        return None
+    return parts[1] if len(parts) > 2 else ""
 
 
 def module_file(module: str, root: Path = ROOT) -> Path | None:
@@ -161,6 +175,13 @@ def layer_violations(root: Path = ROOT) -> list[str]:
                     continue
                 if pkg == "pipeline" and top != "pipeline":
                     bad.append(f"{rel}: imports {m} (pipeline/ is the bottom layer)")
+                elif pkg == "pipeline" and m.count(".") >= 1 and module_file(m, root).name != "__init__.py":
+                    own, other = pipeline_room(module), pipeline_room(m)
+                    if own not in PIPELINE_ROOMS:
+                        bad.append(f"{rel}: pipeline/{own}/ is not a known room (add it to PIPELINE_ROOMS)")
+                    elif other != own and PIPELINE_ROOMS.get(other, 99) >= PIPELINE_ROOMS[own]:
+                        bad.append(f"{rel}: imports {m} (room {own or 'top'} may import only lower rooms, "
+                                   f"not {other or 'top'})")
                 elif pkg == "stages" and top == "lipsynth":
                     bad.append(f"{rel}: imports {m} (a stage may not import an application)")
                 elif pkg == "stages" and top == "stages" and len(rel.parts) > 2:
@@ -169,6 +190,33 @@ def layer_violations(root: Path = ROOT) -> list[str]:
                     if len(parts) >= 2 and parts[1] != own:
                         bad.append(f"{rel}: imports {m} (a stage imports only pipeline/ and its own folder)")
     return bad
+
+
+def import_cycles(root: Path = ROOT) -> list[list[str]]:
+    """Circles of project modules importing each other (function-level imports included), each as
+    the list of modules around it; empty when the import graph is a DAG."""
+    graph: dict[str, set[str]] = {}
+    for pkg in PROJECT_PACKAGES:
+        for f in sorted((root / pkg).rglob("*.py")):
+            module = ".".join(f.relative_to(root).with_suffix("").parts)
+            if module.endswith(".__init__"):
+                continue
+            graph[module] = {m for m in imported_modules(f, module) if m != module and m.split(".")[0] in PROJECT_PACKAGES
+                             and (mf := module_file(m, root)) is not None and mf.name != "__init__.py"}
+    cycles, state = [], {}
+
+    def visit(m, path):
+        state[m] = "open"
+        for n in sorted(graph.get(m, ())):
+            if state.get(n) == "open":
+                cycles.append(path[path.index(n):] + [n])
+            elif n not in state:
+                visit(n, path + [n])
+        state[m] = "done"
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    return cycles
 
 
 def main(argv=None) -> int:

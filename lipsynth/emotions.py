@@ -19,8 +19,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from pipeline.model_folder import ModelError, load_karras
-from pipeline.runner import run_main, setup_logging
+from pipeline.models.model_folder import ModelError, load_karras
+from pipeline.io.runner import run_main, setup_logging
 
 
 def table(info: list[dict]) -> str:

@@ -13,8 +13,8 @@ from __future__ import annotations
 import argparse
 import logging
 
-from pipeline import model_ensemble
-from pipeline.runner import run_main, setup_logging
+from pipeline.models import model_ensemble
+from pipeline.io.runner import run_main, setup_logging
 
 log = logging.getLogger("lipsynth.ensemble")
 

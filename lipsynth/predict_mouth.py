@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.mouth_prediction import load_audio, predict_mouth
-from pipeline.runner import run_main, setup_logging
+from pipeline.models.mouth_prediction import load_audio, predict_mouth
+from pipeline.io.runner import run_main, setup_logging
 
 log = logging.getLogger("lipsynth.predict")
 

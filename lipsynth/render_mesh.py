@@ -2,7 +2,7 @@
 
     lipsynth render-mesh AUDIO --model models/karras --out face.mp4 [--fps 25] [--size 360] [--emotion K]
 
-The model predicts mouth shapes (any family: ``pipeline.mouth_prediction``); the speaker's
+The model predicts mouth shapes (any family: ``pipeline.models.mouth_prediction``); the speaker's
 lower-face mesh (its extended face surface from the model folder, a few thousand vertices) is
 deformed by the predicted points' displacements (Karras models: the whole lower face — jaw, nose,
 lips; other families: the lips) (thin-plate spline, depth from the surface) and
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.runner import run_main, setup_logging
+from pipeline.io.runner import run_main, setup_logging
 from stages.render_mesh.render_mesh import render_mesh
 
 

@@ -7,7 +7,7 @@ synthesize (mouth shapes from the model, re-timing, mouth texture) and composite
 correction, layers, render-back, pyramid blend, H.264 + AAC).
 
 Who is the target? The target's face descriptor (dlib's face-recognition ResNet) is compared
-with the speaker the model folder records (``pipeline/speaker_bank``):
+with the speaker the model folder records (``pipeline/models/speaker_bank``):
 
 * the model's speaker: the target is frontalized with the corpus 3D face model (pose alone per
   frame), the predicted mouth shapes are used as they are (one PCA frame), and candidates come
@@ -37,15 +37,16 @@ from pathlib import Path
 import numpy as np
 
 from lipsynth.target import default_cache, landmarked_target, preprocess_target
-from pipeline import front_ends, identity
+from pipeline.audio import front_ends
+from pipeline.face import identity
 from pipeline.errors import BadInputError, ParameterError
-from pipeline.face import IOD_MM, LIP_POINTS, interocular
-from pipeline.geometry import rotation, rotation_angle_deg
-from pipeline.model_folder import check_model, load_speaker
-from pipeline.mouth_prediction import check_emotion, load_audio
-from pipeline.store import open_group
+from pipeline.face.dlib_face import IOD_MM, LIP_POINTS, interocular
+from pipeline.face.geometry import rotation, rotation_angle_deg
+from pipeline.models.model_folder import load_speaker
+from pipeline.models.mouth_prediction import check_emotion, check_model_folder, load_audio
+from pipeline.io.store import open_group
 from pipeline.params import Params, load_params
-from pipeline.runner import run_main, setup_logging
+from pipeline.io.runner import run_main, setup_logging
 from stages.composite import composite
 from stages.ingest.ingest import probe_video
 from stages.synthesize import synthesize
@@ -123,10 +124,11 @@ def front_end_advice(config: dict) -> str:
 
 
 def audio_domain_check(samples, model: str, p: Params, audio: str) -> dict | None:
-    """Warn (one line) when the audio is far from the model's training audio (``pipeline.audio_domain``),
+    """Warn (one line) when the audio is far from the model's training audio (``pipeline.audio.audio_domain``),
     naming the front end that would suit it."""
-    from pipeline import audio_domain, audio_features
-    from pipeline.model_folder import read_config
+    from pipeline.audio import audio_domain
+    from pipeline.audio import audio_features
+    from pipeline.models.model_folder import read_config
     record = audio_domain.load(model)
     if record is None:
         return None
@@ -174,7 +176,7 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     model = model or params.synthesize.model
     samples = load_audio(audio)                # a bad audio file fails now, not after preprocessing,
     probe_video(str(target), params.ingest, require_audio=False)     # so does a target failing header checks
-    check_model(model)                         # and a bad model folder (any family)
+    check_model_folder(model)                  # and a bad model folder (any family)
     check_emotion(model, emotion)              # and an emotion the model cannot take
     domain = audio_domain_check(samples, model, params, audio)
     cache = cache or default_cache()

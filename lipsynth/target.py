@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.parallel import client_for
+from pipeline.io.parallel import client_for
 from pipeline.params import Params, as_dict
 
 log = logging.getLogger("lipsynth.target")

@@ -5,7 +5,7 @@ import cv2
 import pytest
 import skimage.data
 
-from pipeline import face
+from pipeline.face import dlib_face
 from stages.frontalize import model3d
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,8 +30,8 @@ def face3d():
     """A realistic 68-point model: dlib landmarks of a real photo + the anthropometric depth prior."""
     photo = skimage.data.astronaut()
     gray = cv2.cvtColor(photo, cv2.COLOR_RGB2GRAY)
-    box, _ = face.detect_faces(gray)[0]
-    mean2d = model3d.mean_shape_2d(face.predict_landmarks(gray, box)[None].astype(float))
+    box, _ = dlib_face.detect_faces(gray)[0]
+    mean2d = model3d.mean_shape_2d(dlib_face.predict_landmarks(gray, box)[None].astype(float))
     return model3d._to_canonical(model3d.prior_shape(mean2d))
 
 

@@ -1,10 +1,10 @@
-"""pipeline.audio_domain: the distance of new audio from a model's training audio."""
+"""pipeline.audio.audio_domain: the distance of new audio from a model's training audio."""
 import json
 
 import numpy as np
 import pytest
 
-from pipeline import audio_domain
+from pipeline.audio import audio_domain
 from tests.conftest import SHARED
 
 
@@ -58,8 +58,8 @@ def test_other_voices_are_far_and_the_speakers_own_clips_are_not():
     """GRID s1 statistics from 70 clips and limits from 20 held-out ones (measured max 0.29):
     10 further s1 clips stay within the default limit (measured 0.07–0.15); another GRID speaker's
     720×576 recording (0.54), Obama (0.84) and HDTF radio speech (0.82) are beyond it (0.34)."""
-    from pipeline import audio_features
-    from pipeline.mouth_prediction import load_audio
+    from pipeline.audio import audio_features
+    from pipeline.models.mouth_prediction import load_audio
     clips = sorted((SHARED / "grid_s1" / "video").glob("*.mp4"))[::9][:100]
     if len(clips) < 100 or not (SHARED / "obama" / "obama_01.mp4").is_file():
         pytest.skip(f"real footage not available under {SHARED}")

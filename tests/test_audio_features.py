@@ -3,7 +3,7 @@ import librosa
 import numpy as np
 import pytest
 
-from pipeline import audio_features as af
+from pipeline.audio import audio_features as af
 from pipeline.errors import ParameterError
 
 
@@ -62,7 +62,7 @@ def test_wrong_rate_or_shape_is_a_parameter_error():
 
 
 def test_cmvn_removes_a_per_dimension_channel_offset_and_gain():
-    from pipeline.audio_features import cmvn
+    from pipeline.audio.audio_features import cmvn
     rng = np.random.default_rng(0)
     x = rng.normal(size=(500, 28)) * rng.uniform(0.5, 3, 28) + rng.normal(size=28) * 5
     y = cmvn(x)

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from pipeline import vocal_features, voice_puppet
+from pipeline.audio import vocal_features
+from pipeline.models import voice_puppet
 from pipeline.errors import BadInputError
 from stages.train_brand import entropic
 

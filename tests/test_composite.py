@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import skimage.data
 
-from pipeline.geometry import intrinsics
+from pipeline.face.geometry import intrinsics
 from stages.composite.layers import chin_spline, jaw_band, jaw_correction, layer_masks, pyramid_blend, synth_alpha
 from stages.composite.render import inverse_map, render, texture_footprint
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
-from pipeline.canonical import Surface, TextureWindow
+from pipeline.face.canonical import Surface, TextureWindow
 from stages.frontalize.warp import frontal_texture
 from tests.test_frontal_warp import render as splat
 

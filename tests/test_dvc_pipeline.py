@@ -107,7 +107,7 @@ def test_landmarks_match_ground_truth(project):
 
 @pytest.mark.slow
 def test_frontalized_pose_follows_true_head_motion(project):
-    from pipeline.geometry import euler_degrees
+    from pipeline.face.geometry import euler_degrees
     fr = zarr.open_group(str(project / "store" / "frontalize.zarr"))
     pose, ok = np.asarray(fr["pose"][...]), np.asarray(fr["pose_valid"][...])
     est, true = [], []
@@ -154,7 +154,7 @@ def test_voice_puppetry_trains_beats_the_mean_shape_and_predicts(project, tmp_pa
     assert r.returncode == 0, r.stderr
     out = np.load(tmp_path / "b.npz")
     assert out["lip_points"].shape == (500, 18, 2) and np.isfinite(out["lip_points"]).all()
-    from pipeline.mouth_metrics import opening
+    from pipeline.measures.mouth_metrics import opening
     opening = opening(out["lip_points"])
     assert opening.std() > 0.3                      # the mouth opens and closes with the speech (canonical px)
     # a Voice Puppetry folder from another store is refused by synthesize, naming the mismatch
@@ -190,7 +190,7 @@ def test_karras_trains_beats_the_mean_shape_and_mines_emotions(project, tmp_path
     assert r.returncode == 0, r.stderr
     out = np.load(tmp_path / "k.npz")
     assert out["face_points"].shape == (300, 42, 2) and out["lip_points"].shape == (300, 18, 2)
-    from pipeline.mouth_metrics import opening
+    from pipeline.measures.mouth_metrics import opening
     assert opening(out["lip_points"]).std() > 0.3
     jaw = out["face_points"][:, 6, 1]                                # dlib point 8, the chin: the jaw moves too
     assert jaw.std() > 0.1
@@ -243,7 +243,7 @@ def test_render_mesh_cli_writes_an_mp4_with_audio(project, tmp_path):
 def test_phonetic_store_and_a_phonetic_model(project, tmp_path):
     """The phonetic stage stores one class per 10 ms frame on the MFCC axis; train.features reruns
     training (not the phone recogniser); a model trained on mfcc+phonetic answers predict_mouth."""
-    from pipeline.mouth_prediction import load_audio, predict_mouth
+    from pipeline.models.mouth_prediction import load_audio, predict_mouth
     ph, ing = zarr.open_group(str(project / "store" / "phonetic.zarr")), zarr.open_group(str(project / "store" / "ingest.zarr"))
     phones = np.asarray(ph["phones"][...])
     assert phones.shape == (ing["mfcc"].shape[0], 40)
@@ -264,7 +264,7 @@ def test_phonetic_store_and_a_phonetic_model(project, tmp_path):
     out = predict_mouth(load_audio(project / "data" / "synthetic_speaker" / "speaker_01.mp4"), tmp_path / "m", 25)
     assert out["coeffs"].shape == (250, 20) and np.isfinite(out["coeffs"]).all()
     # audio the recogniser finds no speech in (silence, noise) gives a finite mouth no more open than speech's median
-    from pipeline.face import LIP_POINTS
+    from pipeline.face.dlib_face import LIP_POINTS
     top, bottom = [LIP_POINTS.index(k) for k in (61, 62, 63)], [LIP_POINTS.index(k) for k in (67, 66, 65)]
     opening = lambda m: (m["lip_points"][:, bottom, 1] - m["lip_points"][:, top, 1]).mean(1)
     for quiet in (np.zeros(32000, np.float32), 0.003 * np.random.default_rng(0).standard_normal(32000).astype(np.float32)):
@@ -387,7 +387,7 @@ def test_speak_into_a_target_without_an_audio_track(project, tmp_path):
     target = tmp_path / "mute.mp4"
     with av.open(str(project / "data" / "synthetic_speaker" / "speaker_01.mp4")) as c:
         frames = [f.to_ndarray(format="rgb24") for _, f in zip(range(100), c.decode(video=0))]
-    from pipeline import media
+    from pipeline.io import media
     media.write_video(target, frames, 25.0)                      # 4 s, no audio stream
     with av.open(str(target)) as c:
         assert not c.streams.audio
@@ -478,16 +478,16 @@ def test_preprocessing_hashes_equal_the_committed_dvc_lock(project):
 
 @pytest.mark.slow
 def test_a_library_change_reruns_exactly_the_stages_that_import_it(project):
-    """Code deps are derived from imports: pipeline/repeats.py is used by composite only (and by
+    """Code deps are derived from imports: pipeline/video/repeats.py is used by composite only (and by
     evaluate, which runs composite's entry point)."""
     status = lambda: set(json.loads(dvc(project, "status", "--json").strip().splitlines()[-1]))
     before = status()
-    path = project / "pipeline" / "repeats.py"
+    path = project / "pipeline" / "video" / "repeats.py"
     text = path.read_text()
     path.write_text(text + "\n# touched\n")
     try:
         assert status() - before == {"composite", "evaluate"}
-        geometry = project / "pipeline" / "geometry.py"
+        geometry = project / "pipeline" / "face" / "geometry.py"
         g = geometry.read_text()
         geometry.write_text(g + "\n# touched\n")
         try:

@@ -1,4 +1,4 @@
-"""Model ensembles (pipeline/model_ensemble.py, `lipsynth ensemble`): the folder, the average, the refusals."""
+"""Model ensembles (pipeline/models/model_ensemble.py, `lipsynth ensemble`): the folder, the average, the refusals."""
 import json
 
 import numpy as np
@@ -6,10 +6,12 @@ import pytest
 import torch
 
 from lipsynth import ensemble as ensemble_cli
-from pipeline import delayed_lstm, model_ensemble
+from pipeline.models import delayed_lstm
+from pipeline.models import model_ensemble
 from pipeline.errors import ParameterError
-from pipeline.model_folder import ModelError, check_model, load_speaker, save_model
-from pipeline.mouth_prediction import predict_mouth
+from pipeline.models.model_folder import ModelError, load_speaker, save_model
+from pipeline.models.mouth_prediction import check_model_folder
+from pipeline.models.mouth_prediction import predict_mouth
 from stages.pca.pca import fit_pca
 
 BASIS = fit_pca(np.random.default_rng(0).normal(size=(200, 36)), 20)
@@ -43,7 +45,7 @@ def speech():
 def test_ensemble_predicts_the_mean_of_its_members(tmp_path, members, speech):
     out = tmp_path / "ens"
     cfg = model_ensemble.write(out, members)
-    assert cfg["families"] == ["lstm"] * 3 and check_model(out)["model"] == "ensemble"
+    assert cfg["families"] == ["lstm"] * 3 and check_model_folder(out)["model"] == "ensemble"
     ens = predict_mouth(speech, out, 29.97)
     each = [predict_mouth(speech, m, 29.97) for m in members]
     assert ens["coeffs"].shape == (60, 20) and ens["members"] == 3
@@ -81,11 +83,11 @@ def test_a_broken_member_is_named(tmp_path, members):
     model_ensemble.write(out, members[:2])
     (out / "members" / "1" / "weights.pt").unlink()
     with pytest.raises(ModelError, match=r"members/1: .*missing weights.pt"):
-        check_model(out)
+        check_model_folder(out)
 
 
 def test_cli_writes_the_folder_and_reports_errors(tmp_path, members, capsys):
     assert ensemble_cli.main([str(members[0]), str(members[1]), "--out", str(tmp_path / "ens")]) == 0
-    assert check_model(tmp_path / "ens")["members"] == ["members/0", "members/1"]
+    assert check_model_folder(tmp_path / "ens")["members"] == ["members/0", "members/1"]
     assert ensemble_cli.main([str(members[0]), str(tmp_path / "nope"), "--out", str(tmp_path / "e2")]) != 0
     assert "nope" in capsys.readouterr().err and not (tmp_path / "e2").exists()

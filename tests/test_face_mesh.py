@@ -1,9 +1,9 @@
-"""The animated face mesh (``pipeline.face_mesh``): surface grid, thin-plate deformation, colours, EGL render."""
+"""The animated face mesh (``pipeline.face.face_mesh``): surface grid, thin-plate deformation, colours, EGL render."""
 import numpy as np
 import pytest
 
-from pipeline import face_mesh as fm
-from pipeline.canonical import Surface
+from pipeline.face import face_mesh as fm
+from pipeline.face.canonical import Surface
 
 X, Y = (-60.0, 60.0), (0.0, 120.0)
 

@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from pipeline import front_ends
+from pipeline.audio import front_ends
 from pipeline.errors import ParameterError
-from pipeline.mouth_prediction import load_audio, predict_mouth
-from pipeline.phone_features import PHONES, phone_indicators, recognize_phones
+from pipeline.models.mouth_prediction import load_audio, predict_mouth
+from pipeline.audio.phone_features import PHONES, phone_indicators, recognize_phones
 from tests.conftest import shared
 
 
@@ -66,8 +66,8 @@ def test_combined_front_end_widths_and_utterance_norm():
 
 def test_a_model_given_another_front_ends_frames_says_so(tmp_path):
     """A folder whose config claims one front end but whose normalisation has another width."""
-    from pipeline import delayed_lstm
-    from pipeline.model_folder import save_model
+    from pipeline.models import delayed_lstm
+    from pipeline.models.model_folder import save_model
     from stages.pca.pca import fit_pca
     net = delayed_lstm.DelayedLSTM(28, 8, 20)
     basis = fit_pca(np.random.default_rng(0).normal(size=(100, 36)), 20)
@@ -83,7 +83,7 @@ def test_a_model_given_another_front_ends_frames_says_so(tmp_path):
 
 
 def test_vtlp_moves_a_formant_by_the_warp_factor():
-    from pipeline import audio_features as af
+    from pipeline.audio import audio_features as af
     assert np.allclose(af.vtlp_warp([0, 1000, 8000], 1.0), [0, 1000, 8000])
     f = np.linspace(0, 8000, 200)
     for a in (0.85, 1.15):
@@ -123,7 +123,7 @@ def test_speak_names_the_front_end_that_suits_another_voice():
 
 
 def test_pitch_shift_keeps_formants_and_timing():
-    from pipeline import audio_features as af
+    from pipeline.audio import audio_features as af
     t = np.arange(32000) / 16000
 
     def voice(f0):      # harmonics of f0 under one fixed formant envelope (peaks at 700 and 1800 Hz), on 0.5–1.5 s

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 import skimage.data
 
-from pipeline.geometry import intrinsics, project
+from pipeline.face.geometry import intrinsics, project
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
-from pipeline.canonical import Surface, TextureWindow, frontal_landmarks
+from pipeline.face.canonical import Surface, TextureWindow, frontal_landmarks
 from stages.frontalize.warp import frontal_texture
 
 
@@ -27,7 +27,7 @@ def render(surface, photo, rvec, tvec, K, size=(320, 400), density=4):
     z = surface.z(x, y)
     pts = np.stack([x, y, z], -1).reshape(-1, 3)
     colours = photo[v.astype(int).ravel(), u.astype(int).ravel()]
-    from pipeline.geometry import rotation
+    from pipeline.face.geometry import rotation
     cam_z = (pts @ rotation(rvec).T + tvec)[:, 2]
     uv = np.round(project(pts, rvec, tvec, K)).astype(int)
     order = np.argsort(-cam_z)

@@ -1,8 +1,9 @@
 """Face identity: one person's clips are close, two people are not (real GRID footage)."""
 import numpy as np
 
-from pipeline import face, identity
-from pipeline.media import FrameReader
+from pipeline.face import dlib_face
+from pipeline.face import identity
+from pipeline.io.media import FrameReader
 from tests.conftest import shared
 
 
@@ -12,8 +13,8 @@ def descriptor_of(path, frames=(5, 35, 65)):
     for k in frames:
         rgb = r.get(k)
         gray = np.ascontiguousarray(rgb.mean(2).astype(np.uint8))
-        box, _ = face.detect_face(gray, 1)
-        out.append(identity.face_descriptor(rgb, face.predict_landmarks(gray, box)))
+        box, _ = dlib_face.detect_face(gray, 1)
+        out.append(identity.face_descriptor(rgb, dlib_face.predict_landmarks(gray, box)))
     return identity.identity(np.stack(out))
 
 

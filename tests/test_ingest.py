@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline import media
+from pipeline.io import media
 from pipeline.errors import BadInputError
 from pipeline.params import as_dict, load_params
 from stages.ingest.ingest import decode_video, layout, list_videos, probe_video, split_videos

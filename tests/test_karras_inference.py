@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import karras_inference
+from pipeline.models import karras_inference
 from pipeline.errors import ParameterError
-from pipeline.face import LIP_POINTS
-from pipeline.karras_network import KarrasNetwork
-from pipeline.model_folder import ModelError, load_karras, save_karras
+from pipeline.face.dlib_face import LIP_POINTS
+from pipeline.models.karras_network import KarrasNetwork
+from pipeline.models.model_folder import ModelError, load_karras, save_karras
 from stages.train_karras.targets import FACE_POINTS, LIP_INDEX
 
 CANDIDATES = np.arange(3 * 16, dtype=np.float32).reshape(3, 16) / 10
@@ -66,7 +66,7 @@ def test_two_inferences_4ms_apart_are_averaged(tmp_path):
     m = load_karras(folder)
     rng = np.random.default_rng(1)
     samples = rng.normal(0, 0.1, 16000).astype(np.float32)
-    from pipeline.speech_autocorrelation import padded_track
+    from pipeline.audio.speech_autocorrelation import padded_track
     padded = padded_track(samples)
     t = np.array([0.3, 0.5])
     e = CANDIDATES[1]
@@ -94,7 +94,7 @@ def test_predict_output_is_consistent_with_the_mouth_pca(tmp_path):
 
 
 def test_predict_mouth_dispatches_and_emotion_is_refused_for_other_families(tmp_path):
-    from pipeline.mouth_prediction import check_emotion, predict_mouth
+    from pipeline.models.mouth_prediction import check_emotion, predict_mouth
     folder, _ = small_model(tmp_path)
     samples = np.random.default_rng(3).normal(0, 0.1, 16000).astype(np.float32)
     out = predict_mouth(samples, folder, 25.0, emotion="1")
@@ -110,7 +110,7 @@ def test_predict_mouth_dispatches_and_emotion_is_refused_for_other_families(tmp_
 
 
 def test_mesh_driving_points_use_the_whole_lower_face():
-    from pipeline.canonical import TextureWindow
+    from pipeline.face.canonical import TextureWindow
     from stages.render_mesh.render_mesh import driving_points
     window = TextureWindow(-80.0, 20.0, 160.0 / 128, 128)
     rng = np.random.default_rng(4)

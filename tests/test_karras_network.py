@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import speech_autocorrelation as ac
+from pipeline.audio import speech_autocorrelation as ac
 from pipeline.errors import BadInputError
-from pipeline.karras_network import KarrasNetwork, multiply_adds
+from pipeline.models.karras_network import KarrasNetwork, multiply_adds
 
 SR = ac.SAMPLE_RATE
 

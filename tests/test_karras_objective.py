@@ -75,7 +75,7 @@ def test_shifted_targets_interpolate_linearly():
 
 
 def test_targets_cover_the_lower_face_and_pairs_need_two_valid_frames():
-    from pipeline.face import LIP_POINTS
+    from pipeline.face.dlib_face import LIP_POINTS
     from stages.train_karras.targets import FACE_POINTS, LIP_INDEX, training_pairs
     assert len(FACE_POINTS) == 42 and [FACE_POINTS[i] for i in LIP_INDEX] == LIP_POINTS
     assert 8 in FACE_POINTS and 30 in FACE_POINTS          # chin and nose tip move with the face

@@ -96,3 +96,29 @@ def test_modules_run_as_subprocesses_are_deps_but_not_imports(tmp_path):
     assert deps == ["pipeline/__init__.py", "pipeline/a.py", "stages/__init__.py", "stages/x/__init__.py",
                     "stages/x/run.py", "stages/y/__init__.py", "stages/y/main.py"]
     assert dvc_deps.layer_violations(tmp_path) == []         # running a stage is not importing it
+
+
+def test_pipeline_rooms_import_only_lower_rooms_and_nothing_imports_in_a_circle(tmp_path):
+    assert dvc_deps.import_cycles() == []
+    rooms = {p.name for p in (ROOT / "pipeline").iterdir() if p.is_dir() and (p / "__init__.py").is_file()}
+    assert rooms == set(dvc_deps.PIPELINE_ROOMS) - {""}, rooms
+    make_project(tmp_path, {
+        "pipeline/__init__.py": "",
+        "pipeline/errors.py": "",
+        "pipeline/io/__init__.py": "",
+        "pipeline/io/store.py": "from pipeline.errors import E\ndef f():\n    from pipeline.models import m\n",
+        "pipeline/face/__init__.py": "",
+        "pipeline/face/geo.py": "from pipeline.audio import feat\nfrom pipeline.io import store\n",
+        "pipeline/audio/__init__.py": "",
+        "pipeline/audio/feat.py": "",
+        "pipeline/models/__init__.py": "",
+        "pipeline/models/m.py": "from pipeline.face import geo\nfrom pipeline.models import n\n",
+        "pipeline/models/n.py": "def g():\n    from pipeline.models import m\n",
+        "stages/__init__.py": "",
+    })
+    bad = dvc_deps.layer_violations(tmp_path)
+    assert any(b.startswith("pipeline/io/store.py: imports pipeline.models.m") for b in bad), bad
+    assert any(b.startswith("pipeline/face/geo.py: imports pipeline.audio.feat") for b in bad), bad
+    assert not any("pipeline.io.store" in b or "pipeline.errors" in b or "pipeline.face.geo" in b for b in bad), bad
+    cycles = dvc_deps.import_cycles(tmp_path)
+    assert ["pipeline.models.m", "pipeline.models.n", "pipeline.models.m"] in cycles, cycles

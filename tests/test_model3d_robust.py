@@ -8,7 +8,7 @@ face), and every frame's PnP against the model failed. These clips are synthesis
 import numpy as np
 import pytest
 
-from pipeline.geometry import intrinsics, project
+from pipeline.face.geometry import intrinsics, project
 from pipeline.params import load_params
 from stages.frontalize import model3d
 from stages.frontalize.frontalize import build_model

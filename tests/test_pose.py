@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from pipeline import face
-from pipeline.geometry import intrinsics, project, rotation, rotation_angle_deg, solve_pose
+from pipeline.face import dlib_face
+from pipeline.face.geometry import intrinsics, project, rotation, rotation_angle_deg, solve_pose
 from stages.frontalize import model3d
 
 
@@ -27,7 +27,7 @@ def test_pose_recovery_under_one_degree(face3d):
 
 def test_canonical_frame(face3d):
     assert np.allclose(face3d[[36, 45]].mean(0), 0, atol=1e-9)
-    assert face.interocular(face3d) == pytest.approx(face.IOD_MM)
+    assert dlib_face.interocular(face3d) == pytest.approx(dlib_face.IOD_MM)
     assert face3d[8, 1] > face3d[27, 1]          # chin below the nose bridge (y down)
     assert face3d[30, 2] < face3d[0, 2]          # nose tip nearer the camera than the jaw corner
 

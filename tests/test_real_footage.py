@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import zarr
 
-from pipeline.face import IOD_MM
+from pipeline.face.dlib_face import IOD_MM
 
 from tests.conftest import shared
 from tests.stage_runner import make_params, run_preprocessing

@@ -140,7 +140,7 @@ def test_evaluate_clip_params_are_video_j_and_a_valid_params_file(tmp_path):
 
 def write_fixture_project(tmp_path, video_seconds=2.0, fps=25.0):
     """Fake metrics/plots/evaluate outputs in tmp_path, a real 2 s H.264 clip; returns the params file."""
-    from pipeline import media
+    from pipeline.io import media
     tree = as_dict(Params())
     tree["train"].update(metrics=str(tmp_path / "train.json"), plots=str(tmp_path / "loss.csv"))
     tree["brand"].update(metrics=str(tmp_path / "brand.json"), plots=str(tmp_path / "brand.csv"))

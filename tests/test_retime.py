@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import ParameterError
-from pipeline.repeats import interpolate_repeats
+from pipeline.video.repeats import interpolate_repeats
 from stages.synthesize.retime import blink_flags, extend_by_ping_pong, eye_area, motion_speed, retime, speech_flags
 
 

@@ -3,7 +3,7 @@ import cv2
 import numpy as np
 import skimage.data
 
-from pipeline import face
+from pipeline.face import dlib_face
 from stages.composite.self_check import check_frame, fallback_weights, mouth_energy, passes
 
 
@@ -21,8 +21,8 @@ def test_fallback_weights_fade_around_failed_frames():
 def _photo():
     rgb = skimage.data.astronaut()
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    box, _ = face.detect_faces(gray)[0]
-    return rgb, face.predict_landmarks(gray, box).astype(np.float64)
+    box, _ = dlib_face.detect_faces(gray)[0]
+    return rgb, dlib_face.predict_landmarks(gray, box).astype(np.float64)
 
 
 def test_check_passes_a_real_face_and_catches_a_wrong_mouth():
@@ -32,7 +32,7 @@ def test_check_passes_a_real_face_and_catches_a_wrong_mouth():
     assert passes(good, 0.12, 4.0)
     # the synthesized mouth claimed 30 % of the inter-ocular distance lower than where it is
     moved = lm.copy()
-    moved[48:68, 1] += 0.3 * face.interocular(lm)
+    moved[48:68, 1] += 0.3 * dlib_face.interocular(lm)
     bad = check_frame(rgb, moved, mouth_energy(rgb, lm))
     assert bad["error"] > 0.12 and not passes(bad, 0.12, 4.0)
     # scribbles over the mouth: far sharper than the target there

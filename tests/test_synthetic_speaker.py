@@ -11,7 +11,7 @@ import dlib
 import numpy as np
 import pytest
 
-from pipeline import face
+from pipeline.face import dlib_face
 from scipy.ndimage import uniform_filter1d
 
 from stages.synthetic_speaker import articulation, face_template, language, render
@@ -201,7 +201,7 @@ def test_hog_finds_the_face_and_predictor_agrees_with_truth(corpus):
     truth = np.load(corpus / "first" / "speaker_00.truth.npz")
     assert len(frames) == len(truth["landmarks"])
     detector = dlib.get_frontal_face_detector()
-    predictor = dlib.shape_predictor(face.predictor_path())
+    predictor = dlib.shape_predictor(dlib_face.predictor_path())
     found, errors = 0, []
     for t, frame in enumerate(frames):
         boxes = detector(frame, 0)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import skimage.data
 
-from pipeline.face import LIP_POINTS
+from pipeline.face.dlib_face import LIP_POINTS
 from stages.synthesize import texture as tx
 
 LIP18 = np.array(LIP_POINTS) - 48          # rows of the 18 shape points inside the 20 lip points
@@ -221,7 +221,7 @@ def test_pick_teeth_proxies_prefers_open_sharp_visible_teeth():
 ASTRO_LIP = np.array([[201, 139], [209, 139], [218, 139], [224, 141], [230, 140], [237, 140], [245, 141],
                       [237, 151], [229, 155], [222, 156], [216, 155], [208, 150], [204, 141], [218, 143],
                       [223, 144], [229, 143], [242, 142], [229, 150], [223, 151], [217, 150]], np.float32)
-"""dlib 68-point predictor (pipeline.face) on skimage's astronaut, points 48–67 (a smile with teeth)."""
+"""dlib 68-point predictor (pipeline.face.dlib_face) on skimage's astronaut, points 48–67 (a smile with teeth)."""
 
 
 @pytest.fixture(scope="module")
@@ -282,7 +282,7 @@ def test_teeth_detail_on_real_frontal_textures(grid_preprocessed):
     """Teeth proxy and weighted median on frontal textures of real GRID footage."""
     import zarr
     store = grid_preprocessed / "frontalize.zarr"
-    from pipeline.store import i420_to_rgb
+    from pipeline.io.store import i420_to_rgb
     g = zarr.open_group(store, mode="r")
     k = min(600, g["texture"].shape[0])
     lm = g["frontal_landmarks"][:k]

@@ -8,14 +8,14 @@ import pytest
 import torch
 
 from pipeline.errors import BadInputError
-from pipeline import delayed_lstm
-from pipeline.model_folder import ModelError, load_model, save_model
-from pipeline.mouth_pca import fingerprint, project, reconstruct
-from pipeline.mouth_prediction import frame_count, load_audio, predict_mouth
+from pipeline.models import delayed_lstm
+from pipeline.models.model_folder import ModelError, load_model, save_model
+from pipeline.models.mouth_pca import fingerprint, project, reconstruct
+from pipeline.models.mouth_prediction import frame_count, load_audio, predict_mouth
 from pipeline.params import Train
 from stages.pca.pca import fit_pca, resample_to_100hz
 from stages.train import lstm
-from pipeline.mouth_metrics import lagged_correlation
+from pipeline.measures.mouth_metrics import lagged_correlation
 
 P = Train(hidden=16, layers=1, batch_size=20, bptt=50, lr=0.01, epochs=60)
 

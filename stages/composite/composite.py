@@ -25,13 +25,13 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from pipeline import media
-from pipeline.canonical import Surface, TextureWindow
-from pipeline.geometry import intrinsics
-from pipeline.repeats import halfway_frame, repeat_partners
+from pipeline.io import media
+from pipeline.face.canonical import Surface, TextureWindow
+from pipeline.face.geometry import intrinsics
+from pipeline.video.repeats import halfway_frame, repeat_partners
 from pipeline.params import Composite, Params
-from pipeline.runner import stage_main, write_timing
-from pipeline.store import i420_to_rgb, open_group
+from pipeline.io.runner import stage_main, write_timing
+from pipeline.io.store import i420_to_rgb, open_group
 from stages.composite.layers import (colour_match, jaw_band, jaw_correction, layer_masks, pyramid_blend, skin_region,
                                      synth_alpha)
 from stages.composite import self_check

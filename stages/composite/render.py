@@ -10,8 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.geometry import project
-from pipeline.canonical import Surface, TextureWindow, frontal_landmarks
+from pipeline.face.geometry import project
+from pipeline.face.canonical import Surface, TextureWindow, frontal_landmarks
 
 
 def texture_footprint(points: np.ndarray, rvec, tvec, K: np.ndarray, frame_shape, margin: int = 4):

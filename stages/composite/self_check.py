@@ -14,9 +14,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.canonical import Surface, TextureWindow
-from pipeline.face import MOUTH, interocular, predict_landmarks
-from pipeline.geometry import project
+from pipeline.face.canonical import Surface, TextureWindow
+from pipeline.face.dlib_face import MOUTH, interocular, predict_landmarks
+from pipeline.face.geometry import project
 
 
 def to_frame(uv: np.ndarray, surface: Surface, window: TextureWindow, rvec, tvec, K: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ project's params (model, stores, synthesize/composite settings).
 
 Landmarks of the original are found per frame (dlib HOG box + 68 points); the output is read
 with the original's boxes (same head pose, same timing), so differences are the mouth's. The
-pure measures are ``pipeline.lipsync_measures``: mouth landmark error (px, % IOD) next to a
+pure measures are ``pipeline.measures.lipsync_measures``: mouth landmark error (px, % IOD) next to a
 static mouth, inner-lip opening correlation and best lag, mouth MAD, sharpness and flicker ratios.
 
 Outputs: ``evaluate.metrics`` (per clip and medians) and ``evaluate.out``/ with per clip
@@ -34,12 +34,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from pipeline import face, media
+from pipeline.face import dlib_face
+from pipeline.io import media
 from pipeline.errors import LipsynthError
-from pipeline.lipsync_measures import compare, inner_opening
+from pipeline.measures.lipsync_measures import compare, inner_opening
 from pipeline.params import Params, as_dict
-from pipeline.runner import stage_main, write_timing
-from pipeline.store import atomic_output, open_group
+from pipeline.io.runner import stage_main, write_timing
+from pipeline.io.store import atomic_output, open_group
 
 log = logging.getLogger("lipsynth.evaluate")
 MEDIAN_KEYS = ["mouth_error_px", "mouth_error_iod_pct", "static_mouth_error_px", "static_mouth_error_iod_pct",
@@ -86,13 +87,13 @@ def landmarks_with_boxes(path, boxes: list | None, upsample: int = 1):
     used = []
     for i, g in enumerate(grays):
         if boxes is None:
-            found = face.detect_face(g, upsample)
+            found = dlib_face.detect_face(g, upsample)
             box = None if found is None else found[0]
         else:
             box = boxes[i] if i < len(boxes) else None
         used.append(box)
         if box is not None:
-            lms[i] = face.predict_landmarks(g, box)
+            lms[i] = dlib_face.predict_landmarks(g, box)
             ok[i] = True
     return grays, lms, ok, used
 

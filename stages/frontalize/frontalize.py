@@ -26,14 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import face
-from pipeline.canonical import Surface, TextureWindow, frontal_landmarks
+from pipeline.face import dlib_face
+from pipeline.face.canonical import Surface, TextureWindow, frontal_landmarks
 from pipeline.errors import LipsynthError
-from pipeline.geometry import euler_degrees, intrinsics, solve_pose
-from pipeline.parallel import client_for, run_tasks
+from pipeline.face.geometry import euler_degrees, intrinsics, solve_pose
+from pipeline.io.parallel import client_for, run_tasks
 from pipeline.params import Frontalize, Params
-from pipeline.runner import stage_main
-from pipeline.store import (atomic_output, create_group, create_timed, i420_to_rgb, occupied_shards, open_group,
+from pipeline.io.runner import stage_main
+from pipeline.io.store import (atomic_output, create_group, create_timed, i420_to_rgb, occupied_shards, open_group,
                             rgb_to_i420, video_of_frames, videos_in)
 from stages.frontalize import model3d
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
@@ -116,7 +116,7 @@ def frontalize_block(job: dict) -> int:
                 guess = None
                 continue
             rvec, tvec, err = solve_pose(shape[model3d.RIGID], lms[i][model3d.RIGID], K, guess)
-            iod_px = face.interocular(lms[i])
+            iod_px = dlib_face.interocular(lms[i])
             if guess is not None and err > p.max_reprojection * iod_px:   # bad warm start: solve globally
                 rvec, tvec, err = solve_pose(shape[model3d.RIGID], lms[i][model3d.RIGID], K)
             rerr[i] = err

@@ -19,8 +19,8 @@ import logging
 
 import numpy as np
 
-from pipeline.face import IOD_MM, LEFT_EYE_OUTER as LEO, RIGHT_EYE_OUTER as REO
-from pipeline.geometry import rotation, solve_pose
+from pipeline.face.dlib_face import IOD_MM, LEFT_EYE_OUTER as LEO, RIGHT_EYE_OUTER as REO
+from pipeline.face.geometry import rotation, solve_pose
 
 log = logging.getLogger("lipsynth.frontalize")
 

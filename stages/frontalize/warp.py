@@ -1,6 +1,6 @@
 """Frontal warp (paper 000 §3.2.1): back-project the canonical frontal grid through the extended
 face surface and a frame's pose, resample the lower face into a fixed-size frontal texture, and
-carry the clothing mask (the geometry lives in pipeline.canonical).
+carry the clothing mask (the geometry lives in pipeline.face.canonical).
 
 Canonical texture pixel (u, v) ↔ model point (x, y, f*(x, y)) mm with
 x = x0 + u · mm_per_px, y = y0 + v · mm_per_px.

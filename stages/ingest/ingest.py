@@ -37,12 +37,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline import audio_features, face, media
+from pipeline.audio import audio_features
+from pipeline.face import dlib_face
+from pipeline.io import media
 from pipeline.errors import BadInputError, LipsynthError, ParameterError
-from pipeline.parallel import client_for, run_tasks
+from pipeline.io.parallel import client_for, run_tasks
 from pipeline.params import Ingest, Params
-from pipeline.runner import stage_main
-from pipeline.store import atomic_output, create_group, create_timed, project_path
+from pipeline.io.runner import stage_main
+from pipeline.io.store import atomic_output, create_group, create_timed, project_path
 
 log = logging.getLogger("lipsynth.ingest")
 VIDEO_EXTS = {".mp4", ".mov", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".m4v"}
@@ -174,7 +176,7 @@ def _detect_on(frames: list, max_samples: int, min_face_px: float, upsample: int
     pick = np.unique(np.linspace(0, len(frames) - 1, min(max_samples, len(frames))).round().astype(int))
     boxes, small = [], 0
     for i in pick:
-        found = face.detect_face(frames[i], upsample)
+        found = dlib_face.detect_face(frames[i], upsample)
         if found is not None:
             box = found[0]
             if box[2] - box[0] < min_face_px:

@@ -26,12 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import face
+from pipeline.face import dlib_face
 from pipeline.errors import LipsynthError
-from pipeline.parallel import client_for, run_tasks
+from pipeline.io.parallel import client_for, run_tasks
 from pipeline.params import Landmarks, Params
-from pipeline.runner import stage_main
-from pipeline.store import (atomic_output, create_group, create_timed, occupied_shards, open_group,
+from pipeline.io.runner import stage_main
+from pipeline.io.store import (atomic_output, create_group, create_timed, occupied_shards, open_group,
                             video_of_frames, videos_in)
 
 log = logging.getLogger("lipsynth.landmarks")
@@ -56,7 +56,7 @@ def box_from_landmarks(lm: np.ndarray, relation: np.ndarray) -> np.ndarray:
 def landmark_confidence(gray: np.ndarray, box: np.ndarray, lm: np.ndarray, jitter: float) -> float:
     """1 − (landmark displacement / box displacement) under a diagonal box shift, in [0, 1]."""
     d = jitter * (box[2] - box[0])
-    lm2 = face.predict_landmarks(gray, box + np.array([d, d, d, d]))
+    lm2 = dlib_face.predict_landmarks(gray, box + np.array([d, d, d, d]))
     shift = np.mean(np.linalg.norm(lm2 - lm, axis=1)) / np.hypot(d, d)
     return float(np.clip(1.0 - shift, 0.0, 1.0))
 
@@ -80,7 +80,7 @@ def track_video(grays, p: Landmarks):
         s = gray.shape[0]
         det = box is None or since >= p.detect_every
         if det:
-            found = face.detect_face(gray, p.detect_upsample)
+            found = dlib_face.detect_face(gray, p.detect_upsample)
             if found is not None:
                 box, since = found[0], 0
                 relation = None
@@ -88,7 +88,7 @@ def track_video(grays, p: Landmarks):
         if box is None:
             lms.append(np.zeros((68, 2), np.float32)); conf.append(0.0); valid.append(False)
             continue
-        lm = face.predict_landmarks(gray, box)
+        lm = dlib_face.predict_landmarks(gray, box)
         c = landmark_confidence(gray, box, lm, p.jitter)
         inside = bool(np.all(lm > -p.margin * s) and np.all(lm < (1 + p.margin) * s))
         ok = c >= p.min_confidence and inside

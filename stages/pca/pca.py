@@ -24,11 +24,11 @@ import logging
 import numpy as np
 
 from pipeline.errors import LipsynthError
-from pipeline.face import IOD_MM, LIP_POINTS
-from pipeline.mouth_pca import fingerprint, lip_vectors, project
+from pipeline.face.dlib_face import IOD_MM, LIP_POINTS
+from pipeline.models.mouth_pca import fingerprint, lip_vectors, project
 from pipeline.params import Params
-from pipeline.runner import stage_main
-from pipeline.store import atomic_output, create_group, create_timed, open_group
+from pipeline.io.runner import stage_main
+from pipeline.io.store import atomic_output, create_group, create_timed, open_group
 
 log = logging.getLogger("lipsynth.pca")
 

@@ -1,6 +1,6 @@
 """phonetic — speaker-independent phone indicators for every video (issue 13's phonetic front end).
 
-For each video of the ingest store, pocketsphinx's en-us phone recogniser (``pipeline.phone_features``)
+For each video of the ingest store, pocketsphinx's en-us phone recogniser (``pipeline.audio.phone_features``)
 decodes the stored 16 kHz audio into phone segments, stored as one-hot indicators on the MFCC time
 axis, so a model trained with ``train.features: phonetic`` or ``mfcc+phonetic`` reads the same
 numbers ``lipsynth speak`` computes for new audio.
@@ -21,11 +21,11 @@ import logging
 
 import numpy as np
 
-from pipeline.parallel import client_for, run_tasks
+from pipeline.io.parallel import client_for, run_tasks
 from pipeline.params import Params
-from pipeline.phone_features import PHONE_DIM, PHONES, phone_indicators
-from pipeline.runner import stage_main
-from pipeline.store import atomic_output, create_group, create_timed, open_group
+from pipeline.audio.phone_features import PHONE_DIM, PHONES, phone_indicators
+from pipeline.io.runner import stage_main
+from pipeline.io.store import atomic_output, create_group, create_timed, open_group
 
 log = logging.getLogger("lipsynth.phonetic")
 

@@ -5,7 +5,7 @@ chin, Eqs. 7–8) is triangulated on a regular 2.5 mm grid (a few thousand verti
 model's predicted face points (Karras: jaw, nose and lips; other families: the lips) move the
 vertices by a thin-plate spline of their displacements, depth read from the surface; pyvista
 renders it off screen (EGL), front and three-quarter views side by side, into an H.264 + AAC MP4
-with the audio (``pipeline.face_mesh``). Stage: ``render_mesh.model`` saying
+with the audio (``pipeline.face.face_mesh``). Stage: ``render_mesh.model`` saying
 ``synthesize.audio`` → ``render_mesh.out``; ``lipsynth render-mesh`` does the same for any audio.
 
 Run: ``python -m stages.render_mesh.render_mesh``.
@@ -20,13 +20,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pipeline import face_mesh, media
-from pipeline.canonical import Surface, TextureWindow
+from pipeline.face import face_mesh
+from pipeline.io import media
+from pipeline.face.canonical import Surface, TextureWindow
 from pipeline.errors import LipsynthError
-from pipeline.face import LIP_POINTS
-from pipeline.model_folder import ModelError, load_speaker
-from pipeline.mouth_prediction import check_emotion, load_audio, predict_mouth
-from pipeline.runner import stage_main, write_timing
+from pipeline.face.dlib_face import LIP_POINTS
+from pipeline.models.model_folder import ModelError, load_speaker
+from pipeline.models.mouth_prediction import check_emotion, load_audio, predict_mouth
+from pipeline.io.runner import stage_main, write_timing
 
 log = logging.getLogger("lipsynth.render_mesh")
 X_MM, Y_MM = (-75.0, 75.0), (-10.0, 170.0)

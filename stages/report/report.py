@@ -35,8 +35,8 @@ import subprocess
 from pathlib import Path
 
 from pipeline.params import Params, as_dict, load_params
-from pipeline.runner import run_main, setup_logging
-from pipeline.store import atomic_output
+from pipeline.io.runner import run_main, setup_logging
+from pipeline.io.store import atomic_output
 
 log = logging.getLogger("lipsynth.report")
 TIMING_LOGS = ("synthesize", "composite", "evaluate", "train_karras", "render_mesh")

@@ -9,7 +9,7 @@ uses them::
     if len(V) < N:                                                # optional, see extend_by_ping_pong
         idx = extend_by_ping_pong(len(V), N); V = V[idx]          # target frame of ext. k = idx[k]
     mapping = retime(A, V)                                        # (N,) target index per output frame
-    frames = interpolate_repeats(get_frame, mapping)              # pipeline.repeats: N images
+    frames = interpolate_repeats(get_frame, mapping)              # pipeline.video.repeats: N images
 
 Reading of the paper's equations
 --------------------------------
@@ -42,7 +42,7 @@ import math
 
 import numpy as np
 
-from pipeline import face
+from pipeline.face import dlib_face
 from pipeline.errors import ParameterError
 
 REFERENCE_WINDOW_S = 0.010      # speech level is relative to the clip's loudest 10 ms window
@@ -248,7 +248,7 @@ def motion_speed(landmarks: np.ndarray) -> np.ndarray:
     """
     lm = _check_landmarks(landmarks)
     m = len(lm)
-    iod = face.interocular(lm)
+    iod = dlib_face.interocular(lm)
     valid = np.isfinite(lm).all(axis=(1, 2)) & (np.nan_to_num(iod) > 0)
     if m < 2:
         return np.zeros(m)
@@ -281,9 +281,9 @@ def eye_area(landmarks: np.ndarray) -> np.ndarray:
     real footage in ../shared/data (Obama, HDTF, GRID), closed ones 0.006–0.009.
     """
     lm = _check_landmarks(landmarks)
-    area = 0.5 * (_polygon_area(lm[:, face.RIGHT_EYE]) + _polygon_area(lm[:, face.LEFT_EYE]))
+    area = 0.5 * (_polygon_area(lm[:, dlib_face.RIGHT_EYE]) + _polygon_area(lm[:, dlib_face.LEFT_EYE]))
     with np.errstate(invalid="ignore", divide="ignore"):
-        return area / face.interocular(lm) ** 2
+        return area / dlib_face.interocular(lm) ** 2
 
 
 def blink_flags(landmarks: np.ndarray, threshold: float = 0.010) -> np.ndarray:

@@ -1,7 +1,7 @@
 """synthesize — new audio → lower-face textures timed to a target video (paper 000 §3.2–3.3).
 
 1. Mouth shapes: the trained model (``synthesize.model``) turns the audio into 18 lip points
-   per output frame at the target's frame rate (``pipeline.mouth_prediction``); a model trained on
+   per output frame at the target's frame rate (``pipeline.models.mouth_prediction``); a model trained on
    another PCA basis than the store's is refused.
 2. Re-timing (§3.3, ``retime``): speech flags of the audio, motion speed + blinks of the target,
    the dynamic programme maps output frames to target frames (a target shorter than half the
@@ -38,12 +38,12 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.errors import LipsynthError, ParameterError
-from pipeline.face import IOD_MM, LIP_POINTS
-from pipeline.geometry import euler_degrees
-from pipeline.mouth_prediction import load_audio, predict_mouth
+from pipeline.face.dlib_face import IOD_MM, LIP_POINTS
+from pipeline.face.geometry import euler_degrees
+from pipeline.models.mouth_prediction import load_audio, predict_mouth
 from pipeline.params import Params, Synthesize
-from pipeline.runner import stage_main, write_timing
-from pipeline.store import atomic_output, create_group, open_group, take
+from pipeline.io.runner import stage_main, write_timing
+from pipeline.io.store import atomic_output, create_group, open_group, take
 from stages.synthesize import retime as rt
 from stages.synthesize import texture as tx
 

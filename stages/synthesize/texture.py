@@ -8,7 +8,7 @@ region, the lower proxy moved with the jaw (Eq. 13–14) → unsharp masking of 
 
 Conventions
 -----------
-* Textures are (T, T, 3) RGB uint8 in the frontal texture plane (``pipeline.store.i420_to_rgb``
+* Textures are (T, T, 3) RGB uint8 in the frontal texture plane (``pipeline.io.store.i420_to_rgb``
   of the ``frontalize`` store), landmarks are in the same texture pixels (u right, v down).
   Texture getters (``synthesize_texture``, ``pick_teeth_proxies``, ``proxies_from_frames``) may
   also return the store's (3T/2, T) I420 directly.

@@ -14,7 +14,7 @@ import numpy as np
 import skimage.data
 from scipy.spatial import Delaunay
 
-from pipeline import face
+from pipeline.face import dlib_face
 
 FACE_WIDTH_AT_360 = 120.0
 """Width (px) of the dlib face box in a 360-px-wide frame."""
@@ -81,11 +81,11 @@ def detect_face(image: np.ndarray) -> tuple[dlib.rectangle, np.ndarray]:
     landmarks : ndarray, (68, 2) float64
         Landmark pixel coordinates (x, y).
     """
-    found = face.detect_faces(image, 0)
+    found = dlib_face.detect_faces(image, 0)
     if len(found) != 1:
         raise RuntimeError(f"expected one face in the template photo, found {len(found)}")
     box = found[0][0]
-    landmarks = face.predict_landmarks(image, box).astype(np.float64)
+    landmarks = dlib_face.predict_landmarks(image, box).astype(np.float64)
     return dlib.rectangle(*(int(round(v)) for v in box)), landmarks
 
 

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import torch
 
-from pipeline.delayed_lstm import DelayedLSTM, predict_sequence
+from pipeline.models.delayed_lstm import DelayedLSTM, predict_sequence
 from pipeline.params import Train
 
 log = logging.getLogger("lipsynth.train")

@@ -15,13 +15,13 @@ import os
 from pathlib import Path
 
 from pipeline.params import Params
-from pipeline.runner import stage_main
+from pipeline.io.runner import stage_main
 
 log = logging.getLogger("lipsynth.sweep")
 
 
 def run(params: Params, ingest_path: str, pca_path: str) -> list[dict]:
-    from pipeline.delayed_lstm import pick_device
+    from pipeline.models.delayed_lstm import pick_device
     from stages.train.train import feature_normalisation, fit_lstm, load_sequences, score
     p, s = params.train, params.delay_sweep
     data, basis, pattrs = load_sequences(ingest_path, pca_path)

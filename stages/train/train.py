@@ -19,15 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import front_ends
+from pipeline.audio import front_ends
 from pipeline.errors import LipsynthError, ParameterError
 from pipeline.params import Params, Train, as_dict
-from pipeline.runner import stage_main
-from pipeline.store import atomic_output, open_group
-from pipeline import mouth_metrics
-from pipeline.speaker_bank import export_speaker
-from pipeline.model_folder import save_model
-from pipeline.mouth_prediction import to_frames
+from pipeline.io.runner import stage_main
+from pipeline.io.store import atomic_output, open_group
+from pipeline.measures import mouth_metrics
+from pipeline.models.speaker_bank import export_speaker
+from pipeline.models.model_folder import save_model
+from pipeline.models.mouth_prediction import to_frames
 
 log = logging.getLogger("lipsynth.train")
 MODELS = ("lstm",)
@@ -36,7 +36,7 @@ MODELS = ("lstm",)
 def load_sequences(ingest_path: str, pca_path: str, features: str = "mfcc", phonetic_path: str | None = None):
     """Per-video (x (m, D), y (m, 20), ok (m,)) at 100 Hz, plus frame-rate truth for evaluation.
 
-    x holds the ``features`` front end (``pipeline.front_ends``): ingest's MFCC and/or the
+    x holds the ``features`` front end (``pipeline.audio.front_ends``): ingest's MFCC and/or the
     ``phonetic`` stage's phone indicators (same time axis)."""
     src, pca = open_group(ingest_path), open_group(pca_path)
     mfcc = np.asarray(src["mfcc"][...], np.float32) if front_ends.uses_mfcc(features) else None
@@ -96,7 +96,7 @@ def augmented_copies(data: dict, ingest_path: str, warps: list, shifts: list, fe
     semitones (``audio_features.pitch_shifted_mfcc``: formants and timing kept); phone columns
     unchanged. Returns the seconds spent."""
     import time
-    from pipeline.audio_features import FEATURE_DIM, mfcc_features, pitch_shifted_mfcc
+    from pipeline.audio.audio_features import FEATURE_DIM, mfcc_features, pitch_shifted_mfcc
     t0 = time.perf_counter()
     audio = open_group(ingest_path)["audio"]
     makers = [lambda x, a=a: mfcc_features(x, warp=float(a)) for a in warps] + \
@@ -136,8 +136,8 @@ def score(preds100: list, data: dict, basis: dict, iod_px: float) -> dict:
 def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | None = None,
         frontalize_path: str | None = None, phonetic_path: str | None = None) -> dict:
     """Train ``train.model``; the model folder also gets the speaker (identity, 3D model, candidate
-    bank, ``pipeline/speaker_bank``) when the landmarks and frontalize stores are given."""
-    from pipeline.delayed_lstm import pick_device
+    bank, ``pipeline/models/speaker_bank``) when the landmarks and frontalize stores are given."""
+    from pipeline.models.delayed_lstm import pick_device
     p = params.train
     if p.model not in MODELS:
         raise ParameterError(f"train.model={p.model!r}: choose one of {', '.join(MODELS)}")

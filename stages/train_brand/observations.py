@@ -2,12 +2,12 @@
 model frame rate (``brand.rate``; the paper's 29.97 Hz NTSC, 25 Hz for GRID).
 
 Face: the frontalized landmarks the paper's tracker would follow — the 18 lip points of the
-mouth PCA (``pipeline.face.LIP_POINTS``), the jaw line 3–13 and the brows 17–26: P = 39 points,
+mouth PCA (``pipeline.face.dlib_face.LIP_POINTS``), the jaw line 3–13 and the brows 17–26: P = 39 points,
 canonical texture pixels (pose removed by the frontalize stage). Frames are resampled to the
 model rate by linear interpolation of the frame times (identity when fps = rate); a model frame
 is valid when both video frames around it have a valid pose and landmarks.
 
-Voice: ``pipeline.vocal_features`` of the video's 16 kHz audio track (ingest store), on the
+Voice: ``pipeline.audio.vocal_features`` of the video's 16 kHz audio track (ingest store), on the
 same model frames (the audio starts at the first video frame).
 """
 from __future__ import annotations
@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.face import LIP_POINTS
-from pipeline.store import open_group
-from pipeline.vocal_features import vocal_features
+from pipeline.face.dlib_face import LIP_POINTS
+from pipeline.io.store import open_group
+from pipeline.audio.vocal_features import vocal_features
 
 FACE_POINTS = list(LIP_POINTS) + list(range(3, 14)) + list(range(17, 27))
 LIP_INDEX = list(range(len(LIP_POINTS)))          # the lips are the first 18 of FACE_POINTS

@@ -10,8 +10,8 @@
    features (``brand.features``) into each state's vocal Gaussian; the vocal HMM keeps the face's
    transition matrix.
 4. Evaluation on the validation videos (the LSTM's split): the shared predict path
-   (``pipeline.voice_puppet``: Viterbi on the voice → Eq. 5 trajectory) at each video's frame
-   rate, scored like the LSTM (``pipeline.mouth_metrics``); the paper's Eq. 7 error from the
+   (``pipeline.models.voice_puppet``: Viterbi on the voice → Eq. 5 trajectory) at each video's frame
+   rate, scored like the LSTM (``pipeline.measures.mouth_metrics``); the paper's Eq. 7 error from the
    true face's state sequence and from the voice; entropy rate of the decoded state sequence
    and the transition perplexity (§5) — for the entropic and the ML model.
 
@@ -31,13 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import mouth_metrics, voice_puppet
+from pipeline.measures import mouth_metrics
+from pipeline.models import voice_puppet
 from pipeline.errors import LipsynthError
-from pipeline.model_folder import save_puppet
+from pipeline.models.model_folder import save_puppet
 from pipeline.params import Params, as_dict
-from pipeline.runner import stage_main, write_timing
-from pipeline.speaker_bank import export_speaker
-from pipeline.store import atomic_output
+from pipeline.io.runner import stage_main, write_timing
+from pipeline.models.speaker_bank import export_speaker
+from pipeline.io.store import atomic_output
 from stages.train_brand import entropic
 from stages.train_brand.observations import FACE_POINTS, LIP_INDEX, face_pca, load_videos, observations, segments
 

@@ -26,7 +26,7 @@ import logging
 import numpy as np
 import torch
 
-from pipeline.speech_autocorrelation import windows
+from pipeline.audio.speech_autocorrelation import windows
 
 log = logging.getLogger("lipsynth.train_karras")
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from pipeline.karras_network import KarrasNetwork
-from pipeline.speech_autocorrelation import padded_track, windows
+from pipeline.models.karras_network import KarrasNetwork
+from pipeline.audio.speech_autocorrelation import padded_track, windows
 from stages.train_karras import objective
 from stages.train_karras.targets import training_pairs
 

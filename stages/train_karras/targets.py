@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import LipsynthError
-from pipeline.face import LIP_POINTS
-from pipeline.store import open_group
+from pipeline.face.dlib_face import LIP_POINTS
+from pipeline.io.store import open_group
 
 FACE_POINTS = list(range(2, 15)) + list(range(27, 36)) + list(range(48, 68))
 LIP_INDEX = [FACE_POINTS.index(p) for p in LIP_POINTS]

@@ -2,7 +2,7 @@
 
 1. Targets (``targets``): per frame the 42 frontalized lower-face points (jaw 2–14, nose 27–35,
    lips 48–67; canonical texture px) → 84-D, from the store; audio: the video's 16 kHz track,
-   autocorrelation windows (§3.2) cut on the fly (``pipeline.speech_autocorrelation``).
+   autocorrelation windows (§3.2) cut on the fly (``pipeline.audio.speech_autocorrelation``).
 2. Training set: the store's training videos, or — ``karras.train_seconds`` — a seeded subset of
    them totalling that much speech (the paper trains on 3–5 minutes, §4.5).
 3. Training (``fit``, §4): temporal pairs, one learned emotion per frame, time shifts, feature-map
@@ -12,7 +12,7 @@
 4. Emotion mining (``emotions``, §5.1) → a few robust emotion vectors; candidate 0 is the default.
 5. Evaluation on the validation videos (the LSTM's split) through the shared predict path (two
    inferences 4 ms apart, default emotion) at each video's frame rate, scored like the LSTM
-   (``pipeline.mouth_metrics``), plus the mean shape on the same frames.
+   (``pipeline.measures.mouth_metrics``), plus the mean shape on the same frames.
 
 Writes ``models/karras/`` (weights.pt, config.json, arrays.npz, and the speaker), the metrics
 json and the loss-curve csv. Run: ``python -m stages.train_karras.train_karras``.
@@ -29,15 +29,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline import karras_inference, mouth_metrics
-from pipeline.delayed_lstm import pick_device
+from pipeline.models import karras_inference
+from pipeline.measures import mouth_metrics
+from pipeline.models.delayed_lstm import pick_device
 from pipeline.errors import LipsynthError
-from pipeline.model_folder import load_karras, save_karras
+from pipeline.models.model_folder import load_karras, save_karras
 from pipeline.params import Params, as_dict
-from pipeline.runner import stage_main, write_timing
-from pipeline.speaker_bank import export_speaker
-from pipeline.speech_autocorrelation import padded_track, windows
-from pipeline.store import atomic_output, open_group
+from pipeline.io.runner import stage_main, write_timing
+from pipeline.models.speaker_bank import export_speaker
+from pipeline.audio.speech_autocorrelation import padded_track, windows
+from pipeline.io.store import atomic_output, open_group
 from stages.train_karras import emotions as emotion_mining
 from stages.train_karras.fit import FitConfig, fit
 from stages.train_karras.targets import FACE_POINTS, LIP_INDEX, load_targets

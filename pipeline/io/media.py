@@ -14,7 +14,7 @@ from typing import Iterator
 import av
 import numpy as np
 
-from .errors import BadInputError
+from pipeline.errors import BadInputError
 
 log = logging.getLogger("lipsynth.media")
 

@@ -1,7 +1,7 @@
 """Audio front ends a frame-feature model can be trained on (``train.features``).
 
-    mfcc            paper 000's 28-D MFCC (``pipeline.audio_features``) — the paper-exact choice
-    phonetic        40 pocketsphinx phone indicators (``pipeline.phone_features``): speaker-independent
+    mfcc            paper 000's 28-D MFCC (``pipeline.audio.audio_features``) — the paper-exact choice
+    phonetic        40 pocketsphinx phone indicators (``pipeline.audio.phone_features``): speaker-independent
     mfcc+phonetic   both, concatenated (68-D): MFCC columns first
 
 All run at 100 Hz on the same time axis (frame t centred at t / 100 s). ``frame_features``
@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .audio_features import FEATURE_DIM as MFCC_DIM
-from .audio_features import cmvn, mfcc_features
-from .errors import ParameterError
-from .phone_features import PHONE_DIM, phone_indicators
+from pipeline.audio.audio_features import FEATURE_DIM as MFCC_DIM
+from pipeline.audio.audio_features import cmvn, mfcc_features
+from pipeline.errors import ParameterError
+from pipeline.audio.phone_features import PHONE_DIM, phone_indicators
 
 FRONT_ENDS = ("mfcc", "phonetic", "mfcc+phonetic")
 

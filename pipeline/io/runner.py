@@ -6,7 +6,7 @@ import logging
 import sys
 from pathlib import Path
 
-from .errors import LipsynthError
+from pipeline.errors import LipsynthError
 
 
 def setup_logging(verbose: bool = False) -> None:
@@ -41,7 +41,7 @@ def stage_main(prog: str, doc: str, run, argv=None) -> int:
     """The command line of one stage: ``--params FILE`` and ``-v``; ``run(params)`` does the work."""
     import argparse
 
-    from .params import load_params
+    from pipeline.params import load_params
 
     ap = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")

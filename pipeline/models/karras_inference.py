@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.errors import ParameterError
-from pipeline.speech_autocorrelation import padded_track, windows
+from pipeline.audio.speech_autocorrelation import padded_track, windows
 
 ENSEMBLE_OFFSETS_S = (-0.002, 0.002)        # two inferences 4 ms apart, centred on the frame time
 
@@ -79,9 +79,9 @@ def predict(samples: np.ndarray, model: dict, fps: float, emotion=None, source: 
             device: str = "cpu", ensemble: bool = True) -> dict:
     """Face points, mouth PCA coefficients and lip points at ``fps`` for 16 kHz mono ``samples``.
 
-    ``model`` is ``pipeline.model_folder.load_karras``'s dict; ``emotion`` as in ``parse_emotion``.
+    ``model`` is ``pipeline.models.model_folder.load_karras``'s dict; ``emotion`` as in ``parse_emotion``.
     """
-    from pipeline.mouth_pca import reconstruct
+    from pipeline.models.mouth_pca import reconstruct
     cfg = model["config"]
     e = parse_emotion(emotion, model["emotion_candidates"], cfg.get("default_emotion", 0))
     padded = padded_track(samples, source)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ParameterError
+from pipeline.models.model_folder import FAMILY_FILES, ModelError, check_model, load_speaker, read_config
 
 SPEAKER_FILES = ("speaker.npz", "audio_domain.json")
 AVERAGED = ("coeffs", "lip_points", "face_points")
@@ -32,13 +33,11 @@ AVERAGED = ("coeffs", "lip_points", "face_points")
 
 def member_folders(folder) -> list[Path]:
     """The member folders of an ensemble folder, in order."""
-    from pipeline.model_folder import read_config
     return [Path(folder) / m for m in read_config(folder)["members"]]
 
 
 def check_members(members: list, configs: list[dict], fingerprint: str) -> None:
     """Raise ModelError naming the first member that is itself an ensemble or has another PCA basis."""
-    from pipeline.model_folder import ModelError
     for m, cfg in zip(members, configs):
         if cfg["model"] == "ensemble":
             raise ModelError(f"{m}: is itself an ensemble (give its members instead)")
@@ -52,7 +51,6 @@ def check(folder) -> dict:
 
     Raises ModelError naming the member that is missing, broken or of another basis.
     """
-    from pipeline.model_folder import ModelError, check_model, read_config
     config = read_config(folder)
     members = member_folders(folder)
     if len(members) < 2:
@@ -60,7 +58,9 @@ def check(folder) -> dict:
     for m in members:
         if not m.is_dir():
             raise ModelError(f"{folder}: member {m} is missing")
-    check_members(members, [check_model(m) for m in members], config["pca_fingerprint"])
+    check_members(members, [read_config(m) for m in members], config["pca_fingerprint"])
+    for m in members:
+        check_model(m)
     return config
 
 
@@ -78,12 +78,13 @@ def write(out, members: list) -> dict:
     Copies each member's own files into ``out/members/<k>`` and the first member's speaker
     (speaker.npz, bank.zarr, audio_domain.json) into ``out``. Returns its config.
     """
-    from pipeline.model_folder import FAMILY_FILES, ModelError, check_model, load_speaker
     if len(members) < 2:
         raise ParameterError(f"an ensemble needs at least 2 model folders, got {len(members)}")
     out = Path(out)
-    configs = [check_model(m) for m in members]
+    configs = [read_config(m) for m in members]
     check_members(members, configs, configs[0]["pca_fingerprint"])
+    for m in members:
+        check_model(m)
     speaker = load_speaker(members[0])
     for m in members[1:]:
         if not same_speaker(speaker, load_speaker(m)):

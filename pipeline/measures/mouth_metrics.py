@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.face import INNER_BOTTOM, INNER_TOP, LIP_POINTS
-from pipeline.mouth_pca import reconstruct
+from pipeline.face.dlib_face import INNER_BOTTOM, INNER_TOP, LIP_POINTS
+from pipeline.models.mouth_pca import reconstruct
 
 OPEN_TOP, OPEN_BOTTOM = LIP_POINTS.index(INNER_TOP), LIP_POINTS.index(INNER_BOTTOM)
 

@@ -2,7 +2,7 @@
 and the lower-face texture window on it, shared by frontalize (frame → texture) and composite
 (texture → frame).
 
-Model coordinates are millimetres with the outer eye corners ``IOD_MM`` apart (``pipeline.face``),
+Model coordinates are millimetres with the outer eye corners ``IOD_MM`` apart (``pipeline.face.dlib_face``),
 x right, y down, origin at the eye midpoint. Canonical texture pixel (u, v) ↔ model point
 (x, y, f*(x, y)) mm with x = x0 + u · mm_per_px, y = y0 + v · mm_per_px.
 """
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from pipeline.geometry import project
+from pipeline.face.geometry import project
 
 
 @dataclass

@@ -2,7 +2,7 @@
 frame as a 36-D vector, and its PCA basis.
 
 A basis is a dict with ``mean`` (36,) and ``components`` (k, 36) in canonical texture pixels
-(see ``pipeline.canonical``); it is fitted by the ``pca`` stage and carried by every model folder,
+(see ``pipeline.face.canonical``); it is fitted by the ``pca`` stage and carried by every model folder,
 identified by ``fingerprint``.
 """
 from __future__ import annotations
@@ -11,7 +11,7 @@ import hashlib
 
 import numpy as np
 
-from pipeline.face import LIP_POINTS
+from pipeline.face.dlib_face import LIP_POINTS
 
 
 def lip_vectors(frontal_landmarks: np.ndarray) -> np.ndarray:

@@ -4,21 +4,21 @@
         weights.pt        torch state_dict
         config.json       model family, delay, sizes, params, PCA fingerprint
         arrays.npz        feature_mean (28,), feature_std (28,), pca_mean (36,), pca_components (k, 36)
-    models/brand/ (paper 002, ``pipeline.voice_puppet``)
+    models/brand/ (paper 002, ``pipeline.models.voice_puppet``)
         config.json       family, model rate, voice features, decode, PCA fingerprint
         arrays.npz        the puppet's arrays (HMM, face and voice Gaussians, PCA bases)
-    models/karras/ (paper 001, ``pipeline.karras_inference``)
+    models/karras/ (paper 001, ``pipeline.models.karras_inference``)
         weights.pt        KarrasNetwork state_dict
         config.json       family, outputs, emotion size, face points, default emotion, PCA fingerprint
         arrays.npz        pca_mean, pca_components (mouth PCA), lip_index (18,), face_mean (P·2,),
                           emotion_candidates (K, E) mined from the emotion database,
                           emotion_database (N, E) (one learned vector per training frame)
 
-    models/<name>/ (an ensemble, ``pipeline.model_ensemble``)
+    models/<name>/ (an ensemble, ``pipeline.models.model_ensemble``)
         config.json       family "ensemble", member paths, shared PCA fingerprint
         members/<k>/      each member's own files (any family above)
 
-All may also hold their speaker (speaker.npz, bank.zarr; ``pipeline/speaker_bank``).
+All may also hold their speaker (speaker.npz, bank.zarr; ``pipeline/models/speaker_bank``).
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import LipsynthError
-from pipeline.mouth_pca import fingerprint
+from pipeline.models.mouth_pca import fingerprint
 
 FILES = ("weights.pt", "config.json", "arrays.npz")
 FAMILY_FILES = {"lstm": FILES, "brand": ("config.json", "arrays.npz"), "karras": FILES,
@@ -67,22 +67,23 @@ def read_config(folder) -> dict:
 
 
 def check_model(folder) -> dict:
-    """Load whatever family the folder holds (raises ModelError on any inconsistency); its config."""
+    """Load the one model a folder of a single family holds (raises ModelError on any inconsistency);
+    its config. Ensemble folders are checked by ``pipeline.models.model_ensemble.check`` (any folder:
+    ``pipeline.models.mouth_prediction.check_model_folder``)."""
     config = read_config(folder)
     if config["model"] == "brand":
         load_puppet(folder)
     elif config["model"] == "karras":
         load_karras(folder)
     elif config["model"] == "ensemble":
-        from pipeline.model_ensemble import check
-        check(folder)
+        raise ModelError(f"{folder}: an ensemble folder, not a single model")
     else:
         load_model(folder)
     return config
 
 
 def save_puppet(folder, puppet: dict) -> None:
-    """Write a Voice Puppetry model (``pipeline.voice_puppet``) into ``folder``."""
+    """Write a Voice Puppetry model (``pipeline.models.voice_puppet``) into ``folder``."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     basis = dict(mean=puppet["pca_mean"], components=puppet["pca_components"])
@@ -139,7 +140,7 @@ def save_karras(folder, net, config: dict, arrays: dict) -> None:
 def load_karras(folder, device="cpu", expect_fingerprint: str | None = None) -> dict:
     """A Karras model folder → dict(net, config, and the arrays). Raises ModelError on any inconsistency."""
     import torch
-    from pipeline.karras_network import KarrasNetwork
+    from pipeline.models.karras_network import KarrasNetwork
     folder = Path(folder)
     config = read_config(folder)
     if config["model"] != "karras":
@@ -172,7 +173,7 @@ def load_karras(folder, device="cpu", expect_fingerprint: str | None = None) -> 
 def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
     """Load a model folder → (model, config, arrays). Raises ModelError on any inconsistency."""
     import torch
-    from pipeline.delayed_lstm import DelayedLSTM
+    from pipeline.models.delayed_lstm import DelayedLSTM
     folder = Path(folder)
     missing = [f for f in FILES if not (folder / f).exists()]
     if missing:
@@ -204,7 +205,7 @@ def load_speaker(folder) -> dict | None:
 
     Returns dict(shape3d (68, 3) mm, identity (128,), identity_spread (F,), bank: the path of the
     candidate bank zarr (None when the folder has no bank); and, from folders written since the
-    mesh render, surface_depth (H, W), surface_grid (3,), texture_window (4,)). See ``pipeline/speaker_bank``.
+    mesh render, surface_depth (H, W), surface_grid (3,), texture_window (4,)). See ``pipeline/models/speaker_bank``.
     """
     folder = Path(folder)
     if not (folder / "speaker.npz").is_file():

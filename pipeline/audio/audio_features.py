@@ -10,7 +10,7 @@ import numpy as np
 import scipy.fft
 import scipy.signal
 
-from .errors import ParameterError
+from pipeline.errors import ParameterError
 
 SAMPLE_RATE = 16000
 WIN = 400        # 25 ms at 16 kHz

@@ -5,7 +5,7 @@ on many speakers (CMU Sphinx's en-us acoustic model, shipped in the ``pocketsphi
 maps any voice onto the same 40 classes. ``recognize_phones`` decodes a whole utterance with
 the phone language model (allphone search, batch cepstral mean normalisation);
 ``phone_indicators`` turns the segments into a (T, 40) one-hot matrix on the MFCC time axis
-(frame t at t / 100 s, ``pipeline.audio_features``). Pocketsphinx's allphone search gives one
+(frame t at t / 100 s, ``pipeline.audio.audio_features``). Pocketsphinx's allphone search gives one
 best path and no lattice, so each frame carries its recognised phone with weight 1 — phone-class
 indicators, not posteriors. Fillers (noise, breath, unknown) count as silence.
 
@@ -18,8 +18,8 @@ import os
 
 import numpy as np
 
-from .audio_features import HOP, SAMPLE_RATE
-from .errors import ParameterError
+from pipeline.audio.audio_features import HOP, SAMPLE_RATE
+from pipeline.errors import ParameterError
 
 #: CMU phone set of the en-us model (39 phones) + silence; column order of the indicators
 PHONES = ("SIL", "AA", "AE", "AH", "AO", "AW", "AY", "B", "CH", "D", "DH", "EH", "ER", "EY", "F", "G",

@@ -21,10 +21,10 @@ import os
 import numpy as np
 from scipy.interpolate import RBFInterpolator
 
-from pipeline.canonical import Surface
+from pipeline.face.canonical import Surface
 
 ANCHOR_LANDMARKS = (27, 28, 36, 39, 42, 45)      # nose bridge and eye corners: they do not move with speech
-# the 18 lip points (pipeline.face.LIP_POINTS order: outer 48–59, inner 61–63, 65–67) as polygons
+# the 18 lip points (pipeline.face.dlib_face.LIP_POINTS order: outer 48–59, inner 61–63, 65–67) as polygons
 OUTER_LIP = list(range(12))
 INNER_LIP = [0, 12, 13, 14, 6, 15, 16, 17]        # 48 (corner), 61, 62, 63, 54 (corner), 65, 66, 67
 SKIN, LIP, MOUTH = (0.86, 0.70, 0.60), (0.75, 0.42, 0.42), (0.12, 0.03, 0.03)

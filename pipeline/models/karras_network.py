@@ -1,7 +1,7 @@
 """The network of Karras et al. 2017 (paper 001 §3.1, Table 1), exactly.
 
 Input (B, 1, 64, 32): 64 audio frames (time) × 32 autocorrelation coefficients
-(``pipeline.speech_autocorrelation``); emotion (B, E).
+(``pipeline.audio.speech_autocorrelation``); emotion (B, E).
 
     formant analysis   5 convolutions over the coefficient axis, ReLU:
                        1×3 stride 1×2 → 72, 108, 162, 243 channels (32 → 16 → 8 → 4 → 2 coefficients),

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .face import MOUTH as LIPS, interocular
+from pipeline.face.dlib_face import MOUTH as LIPS, interocular
 
 UPPER_INNER_LIP, LOWER_INNER_LIP = [61, 62, 63], [67, 66, 65]      # facing pairs of the inner lip
 

@@ -6,7 +6,7 @@ corpus's per-dimension standard deviation:
 
     shift = sqrt( mean_k ( (mean_t x[t, k] − μ_k) / σ_k )² )
 
-over the 28 MFCC dimensions k (``pipeline.audio_features.mfcc_features`` of RMS-normalised
+over the 28 MFCC dimensions k (``pipeline.audio.audio_features.mfcc_features`` of RMS-normalised
 audio), μ, σ the training videos' MFCC mean and std (all frames). The model folder stores μ, σ
 and the shifts of the corpus's own *validation* videos (held out of training: what a new
 recording of the same speaker looks like) in ``audio_domain.json``; audio is called far when its
@@ -57,7 +57,7 @@ def reference(train: list[np.ndarray], held_out: list[np.ndarray]) -> dict:
 def export(folder, ingest_path: str) -> dict:
     """Write ``audio_domain.json`` into the model folder from the ingest store's MFCC (training
     videos → statistics, validation videos → reference shifts); returns the record."""
-    from pipeline.store import open_group
+    from pipeline.io.store import open_group
     src = open_group(ingest_path)
     mfcc = np.asarray(src["mfcc"][...], np.float32)
     parts: dict[str, list] = {"train": [], "val": []}

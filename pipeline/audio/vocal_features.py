@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import audio_features
+from pipeline.audio import audio_features
 from pipeline.errors import BadInputError, ParameterError
 
 KINDS = ("paper", "mfcc")

@@ -2,13 +2,13 @@
 
 ``predict_mouth(load_audio(path), model_dir, fps)`` is what ``synthesize``, ``lipsynth speak``
 and ``lipsynth predict-mouth`` call, whatever family the folder holds: ``lstm`` (below) or
-``brand`` (Voice Puppetry, ``pipeline.voice_puppet``: Viterbi on its own voice features, the
+``brand`` (Voice Puppetry, ``pipeline.models.voice_puppet``: Viterbi on its own voice features, the
 closed-form trajectory at ``fps``) or ``ensemble`` (the mean of its members' outputs,
-``pipeline.model_ensemble``) or ``karras`` (Karras et al., ``pipeline.karras_inference``:
+``pipeline.models.model_ensemble``) or ``karras`` (Karras et al., ``pipeline.models.karras_inference``:
 autocorrelation windows at the frame times, two inferences 4 ms apart, a constant or interpolated
 emotion vector — ``emotion``; its output also has ``face_points``, the whole lower face). The audio is any file PyAV reads (wav, mp3, m4a, the audio
 of a video...), any rate and channel count: it is mixed to mono, resampled to 16 kHz, RMS-normalised and turned into the model's
-front end (``pipeline.front_ends``: the paper's 28-D MFCC, pocketsphinx phone indicators, or both). The LSTM runs over them (in chunks that carry its state, if asked — the
+front end (``pipeline.audio.front_ends``: the paper's 28-D MFCC, pocketsphinx phone indicators, or both). The LSTM runs over them (in chunks that carry its state, if asked — the
 result equals one pass) and its 100 Hz output is sampled at the video frame times
 t_k = k / fps, k < round(duration · fps).
 
@@ -19,9 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import audio_features, front_ends, media
+from pipeline.audio import audio_features
+from pipeline.audio import front_ends
+from pipeline.io import media
 from pipeline.errors import BadInputError, ParameterError
-from pipeline.mouth_pca import reconstruct
+from pipeline.models import model_ensemble
+from pipeline.models.model_folder import check_model, read_config
+from pipeline.models.mouth_pca import reconstruct
 
 MIN_SECONDS = 0.5
 
@@ -45,15 +49,22 @@ def to_frames(c100: np.ndarray, frame_time: np.ndarray, rate: float = 100.0) -> 
     return np.stack([np.interp(frame_time, t, c100[:, j]) for j in range(c100.shape[1])], axis=1)
 
 
+def check_model_folder(model_dir) -> dict:
+    """Check a model folder of any family, ensembles included (raises ModelError naming what is
+    wrong); its config."""
+    if read_config(model_dir)["model"] == "ensemble":
+        return model_ensemble.check(model_dir)
+    return check_model(model_dir)
+
+
 def check_emotion(model_dir, emotion) -> None:
     """Refuse (ParameterError) an ``--emotion`` the model folder cannot take, before any long work."""
-    from pipeline.model_folder import read_config
     if emotion is None:
         return
     family = read_config(model_dir)["model"]
     if family != "karras":
         raise ParameterError(f"--emotion {emotion}: only Karras models take an emotion; {model_dir} is a {family} model")
-    from pipeline.karras_inference import parse_emotion
+    from pipeline.models.karras_inference import parse_emotion
     with np.load(f"{model_dir}/arrays.npz") as z:
         parse_emotion(emotion, z["emotion_candidates"])
 
@@ -61,19 +72,18 @@ def check_emotion(model_dir, emotion) -> None:
 def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: float | None = None,
                   device: str = "auto", source: str = "audio", emotion=None) -> dict:
     """Mouth shapes at ``fps`` for 16 kHz mono ``samples`` (see module doc for the output keys)."""
-    from pipeline.delayed_lstm import pick_device, predict_sequence
-    from pipeline.model_folder import load_model, load_puppet, read_config
+    from pipeline.models.delayed_lstm import pick_device, predict_sequence
+    from pipeline.models.model_folder import load_model, load_puppet
     if not 1 <= fps <= 240:
         raise ParameterError(f"--fps {fps}: expected a video frame rate between 1 and 240")
     family = read_config(model_dir)["model"]
     check_emotion(model_dir, emotion)
     if family == "ensemble":
-        from pipeline import model_ensemble
         return model_ensemble.average([predict_mouth(samples, m, fps, chunk_seconds, device, source)
                                        for m in model_ensemble.member_folders(model_dir)])
     if family == "karras":
-        from pipeline import karras_inference
-        from pipeline.model_folder import load_karras
+        from pipeline.models import karras_inference
+        from pipeline.models.model_folder import load_karras
         dev = pick_device(device)
         model = load_karras(model_dir, dev)
         out = karras_inference.predict(samples, model, fps, emotion, source=source, device=dev)
@@ -82,7 +92,7 @@ def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: flo
                     mean_shape=model["pca_mean"].reshape(-1, 2).astype(np.float32),
                     face_mean=model["face_mean"].reshape(-1, 2).astype(np.float32), face_point_ids=cfg["face_points"])
     if family == "brand":
-        from pipeline import voice_puppet
+        from pipeline.models import voice_puppet
         puppet = load_puppet(model_dir)
         out = voice_puppet.predict(samples, puppet, fps, source=source)
         cfg = puppet["config"]

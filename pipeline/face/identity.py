@@ -1,6 +1,6 @@
 """Who is in a video: dlib's face-recognition ResNet descriptors (128-D) of sampled frames.
 
-A model folder records its speaker's descriptor (``pipeline/speaker_bank``); ``lipsynth speak``
+A model folder records its speaker's descriptor (``pipeline/models/speaker_bank``); ``lipsynth speak``
 computes the target's and compares: two faces of one person are usually less than 0.6 apart
 (dlib's threshold on LFW; Euclidean distance of unit-scale descriptors), two people more.
 
@@ -18,7 +18,7 @@ import numpy as np
 @functools.lru_cache(maxsize=1)
 def _recogniser():
     import dlib
-    from pipeline.face import predictor_path
+    from pipeline.face.dlib_face import predictor_path
     return dlib.face_recognition_model_v1(os.path.join(os.path.dirname(predictor_path()),
                                                        "dlib_face_recognition_resnet_model_v1.dat"))
 
@@ -45,7 +45,7 @@ def video_descriptor(crops, landmarks: np.ndarray, valid: np.ndarray, crop, n_fr
     crops : indexable (N, 3S/2, S) I420 crops; landmarks : (N, 68, 2) frame px; valid : (N,) bool.
     None when no frame is valid.
     """
-    from pipeline.store import i420_to_rgb
+    from pipeline.io.store import i420_to_rgb
     idx = np.flatnonzero(valid)
     if not len(idx):
         return None

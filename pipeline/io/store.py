@@ -67,7 +67,7 @@ def create_group(path, attrs: dict | None = None) -> zarr.Group:
 
 def open_group(path, mode: str = "r") -> zarr.Group:
     if not Path(path).exists():
-        from .errors import LipsynthError
+        from pipeline.errors import LipsynthError
         raise LipsynthError(f"{path}: store not found — run the stage that produces it first (dvc repro)")
     return zarr.open_group(str(path), mode=mode, zarr_format=3)
 

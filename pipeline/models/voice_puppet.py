@@ -13,7 +13,7 @@ A *puppet* is a dict of arrays (the ``models/brand`` folder, written by ``stages
     face_pca_mean (2P,), face_pca_components (D, 2P), lip_index (18,)
                                              PCA coordinates ↔ the P face points; which are the lips
     pca_mean (36,), pca_components (k, 36)   the store's mouth PCA basis (the shared predict output)
-    config: rate (Hz), features (pipeline.vocal_features kind), decode ("viterbi" | "posterior")
+    config: rate (Hz), features (pipeline.audio.vocal_features kind), decode ("viterbi" | "posterior")
 
 The trajectory is solved at any frame rate: velocities are per second, so the velocity term of
 Eq. 5 is h·(y_t − y_{t−1}) at h output frames/s ("by scaling the velocity terms", §4.5).
@@ -24,9 +24,9 @@ import numpy as np
 import scipy.linalg
 from scipy.special import logsumexp
 
-from pipeline import vocal_features
+from pipeline.audio import vocal_features
 from pipeline.errors import BadInputError, ParameterError
-from pipeline.mouth_pca import project, reconstruct
+from pipeline.models.mouth_pca import project, reconstruct
 
 DECODE = ("viterbi", "posterior")
 SILENCE_DBFS = -70.0
@@ -201,7 +201,7 @@ def trajectory_at(weights: np.ndarray, puppet: dict, fps: float, n_out: int) -> 
 
 
 def predict(samples: np.ndarray, puppet: dict, fps: float, source="audio", decode: str | None = None) -> dict:
-    """Mouth shapes at ``fps`` for 16 kHz mono samples (keys as ``pipeline.mouth_prediction``)."""
+    """Mouth shapes at ``fps`` for 16 kHz mono samples (keys as ``pipeline.models.mouth_prediction``)."""
     check_puppet(puppet)
     how = decode or puppet["config"].get("decode", "viterbi")
     _, loglik = decode_voice(samples, puppet, source)

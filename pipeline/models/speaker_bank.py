@@ -6,7 +6,7 @@
                                  identity (128,) — median dlib face descriptor of training frames,
                                  identity_spread (F,) — each sampled frame's distance to it
     models/<model>/audio_domain.json  the training audio's MFCC mean/std and the shifts of the held-out
-                                 (validation) clips from it (``pipeline.audio_domain``): speak warns about far audio
+                                 (validation) clips from it (``pipeline.audio.audio_domain``): speak warns about far audio
     models/<model>/bank.zarr     the candidate bank: ``train.bank_frames`` training frames spread
                                  evenly over the training videos (valid pose and landmarks):
         texture (P, 3T/2, T) uint8 I420 frontal texture, clothing_mask (P, T, T) bool,
@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import audio_domain
-from pipeline import identity as ident
-from pipeline.store import create_group, open_group, take
+from pipeline.audio import audio_domain
+from pipeline.face import identity as ident
+from pipeline.io.store import create_group, open_group, take
 
 log = logging.getLogger("lipsynth.speaker_bank")
 
@@ -89,5 +89,5 @@ def export_speaker(folder, ingest_path: str, landmarks_path: str, frontalize_pat
 
 
 def _rgb(i420) -> np.ndarray:
-    from pipeline.store import i420_to_rgb
+    from pipeline.io.store import i420_to_rgb
     return i420_to_rgb(np.asarray(i420))
