@@ -132,7 +132,10 @@ class Train:
     batch_size: int = 100
     bptt: int = 100
     lr: float = 0.001
-    epochs: int = 300
+    steps: int = 300
+    val_every: int = 10
+    patience: int | None = None
+    min_delta: float = 0.0
     baselines: bool = True
     feature_norm: str = "utterance"
     features: str = "mfcc"
@@ -175,7 +178,7 @@ class Karras:
     metrics: str = "metrics/train_karras.json"
     plots: str = "plots/train_karras_loss.csv"
     train_seconds: float | None = None
-    epochs: int = 500
+    steps: int = 240
     batch: int = 100
     lr: float = 0.001
     emotion_dim: int = 16
@@ -183,7 +186,9 @@ class Karras:
     motion: bool = True
     emotions: bool = True
     time_shift: bool = True
-    val_every: int = 5
+    val_every: int = 24
+    patience: int | None = None
+    min_delta: float = 0.0
     val_frames: int = 2000
     mine_candidates: int = 2000
     mine_probes: int = 8
@@ -208,7 +213,7 @@ class RenderMesh:
 @dataclass
 class DelaySweep:
     delays: list = field(default_factory=lambda: [0, 5, 10, 20, 40])
-    epochs: int = 300
+    steps: int = 300
     plots: str = "plots/delay_sweep.csv"
 
 

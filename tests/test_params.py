@@ -45,8 +45,8 @@ def test_a_mistake_names_the_key(edit, message):
 
 
 def test_missing_keys_take_the_defaults_and_ints_are_floats():
-    p = parse({"frontalize": {"focal_factor": 2}, "train": {"epochs": 3}})
-    assert p.frontalize.focal_factor == 2 and p.train.epochs == 3 and p.train.hidden == 60
+    p = parse({"frontalize": {"focal_factor": 2}, "train": {"steps": 3}})
+    assert p.frontalize.focal_factor == 2 and p.train.steps == 3 and p.train.hidden == 60
 
 
 def test_a_stage_refuses_a_bad_params_file_with_one_line(tmp_path):

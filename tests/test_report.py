@@ -52,7 +52,8 @@ def fake_ctx(n_clips=1):
     clips = [clip(f"speaker_{i:02d}", 1.0 + i) for i in range(n_clips)]
     ev = {"setting": "Video J", "exclude_target_from_pool": True, "clips": n_clips,
           "median": evaluate.summarise(clips), "per_clip": clips}
-    loss = [{"model": "lstm", "epoch": str(e), "train_loss": str(100 / e), "val_loss": str(120 / e)} for e in range(1, 20)]
+    loss = [{"model": "lstm", "step": str(10 * e), "epoch": str(e), "train_loss": str(100 / e), "val_loss": str(120 / e)}
+            for e in range(1, 20)]
     sweep = [{"delay_ms": str(d), "val_loss": str(50 - d / 10), "val_mouth_error_px": "1.2"} for d in (0, 50, 100, 200, 400)]
     shown = [(label, c, opening_rows(), f"videos/{c['diagnostic_video']}", 2.0) for label, c in report.shown_clips(clips)]
     return dict(title="t <&>", train=TRAIN, loss_rows=loss, sweep_rows=sweep, paper_delay_ms=200.0, evaluate=ev,

@@ -17,7 +17,7 @@ from stages.pca.pca import fit_pca, resample_to_100hz
 from stages.train import lstm
 from pipeline.measures.mouth_metrics import lagged_correlation
 
-P = Train(hidden=16, layers=1, batch_size=20, bptt=50, lr=0.01, epochs=60)
+P = Train(hidden=16, layers=1, batch_size=20, bptt=50, lr=0.01, steps=540, val_every=9)   # 60 epochs of 9 steps
 
 
 def test_pca_round_trip_and_variance_order():
@@ -58,7 +58,8 @@ def test_target_delay_is_needed_to_see_the_future():
     train, val = toy_sequences(k), toy_sequences(k, 6, seed=1)
     loss = {}
     for d in (0, 3, 5, 8):
-        model, hist = lstm.train(train, val, P, d, torch.device("cpu"), seed=0)
+        model, hist, kept = lstm.train(train, val, P, d, torch.device("cpu"), seed=0)
+        assert kept == hist[-1]["step"] == 540
         loss[d] = hist[-1]["val_loss"]
     assert loss[5] < 0.3 * loss[0] and loss[8] < 0.3 * loss[0]        # delay ≥ k: the future is visible
     assert loss[3] > 2 * loss[5]                                      # delay < k: still blind to part of it

@@ -126,23 +126,37 @@ def karras_rows(karras: dict | None, mean_px: float) -> list[list[str]]:
     if not m:
         return []
     px = num(m.get("mouth_error_px"))
-    name = f"Karras et al. ({fmt(num(karras.get('training_seconds')) / 60, 1)} min, {karras.get('epochs')} epochs)"
+    name = f"Karras et al. ({fmt(num(karras.get('training_seconds')) / 60, 1)} min, {budget_text(karras)})"
     return [[name, fmt(px), fmt(m.get("mouth_error_iod_pct")), fmt(px / mean_px if mean_px else math.nan),
              fmt(m.get("median_opening_corr"), 3), fmt(m.get("av_within_one_frame"), pct=True),
              str(m.get("n_clips", "—"))]]
 
 
+def budget_text(m: dict) -> str:
+    """'240 steps (10.0 epochs)' from a metrics dict (older runs recorded epochs only)."""
+    if m.get("steps_run") is None:
+        return f"{m.get('epochs')} epochs"
+    kept = f", weights of step {m['step_kept']}" if m.get("step_kept") not in (None, m["steps_run"]) else ""
+    return f"{m['steps_run']} steps ({fmt(num(m.get('epochs')), 1)} epochs{kept})"
+
+
+def x_axis(rows: list[dict]) -> str:
+    """The training-curve csv's x column: optimizer steps (older runs: epochs)."""
+    return "step" if rows and "step" in rows[0] else "epoch"
+
+
 def karras_plot(rows: list[dict]) -> str:
-    """Position term per epoch: training (with noise and shifts) and the validation curve."""
+    """Position term per validation point: training (with noise and shifts) and the validation curve."""
     fig, ax = figure()
-    tr = [(num(r["epoch"]), num(r["position"])) for r in rows if r.get("position")]
-    va = [(num(r["epoch"]), num(r["val_position"])) for r in rows if r.get("val_position")]
+    xs = x_axis(rows)
+    tr = [(num(r[xs]), num(r["position"])) for r in rows if r.get("position")]
+    va = [(num(r[xs]), num(r["val_position"])) for r in rows if r.get("val_position")]
     if tr:
         ax.plot(*zip(*tr), label="training (position term)")
     if va:
         ax.plot(*zip(*va), marker=".", label="validation")
     ax.set_yscale("log")
-    ax.set_xlabel("epoch")
+    ax.set_xlabel("optimizer step" if xs == "step" else "epoch")
     ax.set_ylabel("position loss (px² per coordinate)")
     ax.legend()
     return svg(fig, "karras-loss")
@@ -255,12 +269,13 @@ def figure(w: float = 6.4, h: float = 3.2):
 def loss_plot(rows: list[dict]) -> str:
     fig, ax = figure()
     models = sorted({r.get("model", "model") for r in rows})
+    xs = x_axis(rows)
     for m in models:
         rs = [r for r in rows if r.get("model", "model") == m]
-        x = [num(r["epoch"]) for r in rs]
+        x = [num(r[xs]) for r in rs]
         ax.plot(x, [num(r["train_loss"]) for r in rs], label=f"{m} train")
         ax.plot(x, [num(r["val_loss"]) for r in rs], "--", label=f"{m} validation")
-    ax.set_xlabel("epoch"), ax.set_ylabel("loss (PCA coefficients, MSE)"), ax.set_yscale("log")
+    ax.set_xlabel("optimizer step" if xs == "step" else "epoch"), ax.set_ylabel("loss (PCA coefficients, MSE)"), ax.set_yscale("log")
     ax.grid(alpha=0.3), ax.legend(fontsize=8)
     return svg(fig, "loss")
 
@@ -348,7 +363,7 @@ def build_html(ctx: dict) -> str:
         em = k.get("emotions") or {}
         parts.append("<h3>Karras et al. (paper 001)</h3>"
                      f"<p>{k.get('training_videos')} training videos ({fmt(num(k.get('training_seconds')) / 60, 1)} min, "
-                     f"{k.get('training_frames')} frames), {k.get('epochs')} epochs (time per epoch: the train_karras "
+                     f"{k.get('training_frames')} frames), {budget_text(k)} (time per step: the train_karras "
                      "timing below); 42 lower-face points (jaw, nose, lips). "
                      f"Emotion mining (§5.1): {em.get('step1', '—')} of {em.get('scanned', '—')} scanned vectors pass "
                      f"the closed/open probes, {em.get('step2', '—')} survive playback → "

@@ -5,7 +5,8 @@ mouth shape of step t − d (target delay d = 20 steps = 200 ms), so the network
 of the future before it commits to a shape (Eq. 1–6). Inputs are normalised by the training
 mean/variance; outputs are the unnormalised PCA coefficients; L2 loss; Adam; truncated
 back-propagation through time over windows of ``bptt`` steps with batches of ``batch_size``
-parallel streams whose state carries across windows.
+parallel streams whose state carries across windows; a budget of ``steps`` optimizer steps (one
+per window), validated every ``val_every`` steps, with optional early stopping (``patience``).
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import numpy as np
 import torch
 
 from pipeline.models.delayed_lstm import DelayedLSTM, predict_sequence
+from pipeline.models.training_budget import Budget, EarlyStopping, StepPlan
 from pipeline.params import Train
 
 log = logging.getLogger("lipsynth.train")
@@ -60,21 +62,25 @@ def masked_l2(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> t
 
 
 def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: int = 0,
-          desc: str = "lstm") -> tuple[DelayedLSTM, list[dict]]:
-    """Train one model.
+          desc: str = "lstm", budget: Budget | None = None) -> tuple[DelayedLSTM, list[dict], int]:
+    """Train one model for a budget of optimizer steps (``pipeline.models.training_budget``).
 
     Parameters
     ----------
     train_seqs, val_seqs : list of (x (m, D) normalised float32, y (m, 20), ok (m,) bool); a training
         x may also be (K, m, D): K augmented copies of the same audio, one drawn per epoch
-    p : train params (hidden, layers, batch_size, bptt, lr, epochs).
+    p : train params (hidden, layers, batch_size, bptt, lr; steps, val_every, patience unless
+        ``budget`` is given).
 
     Returns
     -------
-    model, history (one dict per epoch: epoch, train_loss, val_loss, seconds).
+    model (the weights of the best validation point when early stopping is on, else the last),
+    history (one dict per validation point: step, epoch, train_loss — the mean since the previous
+    point —, val_loss, seconds), and the step whose weights were kept.
     """
     from tqdm import tqdm
 
+    budget = (budget or Budget(p.steps, p.val_every, p.patience, p.min_delta)).check("train")
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     n_in, n_out = train_seqs[0][0].shape[-1], train_seqs[0][1].shape[1]
@@ -82,14 +88,19 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
     opt = torch.optim.Adam(model.parameters(), lr=p.lr)
     # x may hold K variants (K, m, n_in) of the same audio (VTLP copies): each epoch draws one per video
     variants = [[delayed_pairs(xv, y, ok, delay) for xv in (x if x.ndim == 3 else x[None])] for x, y, ok in train_seqs]
-    history = []
-    bar = tqdm(range(p.epochs), desc=f"train {desc} (d={delay})", unit="epoch", dynamic_ncols=True)
-    for epoch in bar:
-        t0 = time.perf_counter()
+    frames = sum(len(v[0][0]) for v in variants)
+    B = max(1, min(p.batch_size, frames // p.bptt))
+    steps_per_epoch = max(1, frames // (B * p.bptt))            # make_streams: L // bptt windows
+    plan = StepPlan(f"LSTM {desc} (d={delay})", budget, steps_per_epoch, f"{frames / 100:,.0f} s of audio", log,
+                    calibrate=min(5, budget.steps))
+    stopper = EarlyStopping(budget)
+    history, step, total, count, t0, stop = [], 0, 0.0, 0.0, time.perf_counter(), False
+    bar = tqdm(total=budget.steps, desc=f"train {desc} (d={delay})", unit="step", dynamic_ncols=True)
+    while step < budget.steps and not stop:
         model.train()
         shifted = [v[0] if len(v) == 1 else v[rng.integers(len(v))] for v in variants]
         X, Y, M = (torch.from_numpy(a).to(device) for a in make_streams(shifted, p.batch_size, p.bptt, rng))
-        state, total, count = None, 0.0, 0.0
+        state = None
         for a in range(0, X.shape[1], p.bptt):
             pred, state = model(X[:, a:a + p.bptt], state)
             state = tuple(s.detach() for s in state)
@@ -99,11 +110,29 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
             opt.step()
             w = float(M[:, a:a + p.bptt].sum())
             total, count = total + loss.item() * w, count + w
-        val = evaluate_loss(model, val_seqs, delay, device) if val_seqs else float("nan")
-        history.append(dict(epoch=epoch + 1, train_loss=total / max(count, 1), val_loss=val,
-                            seconds=time.perf_counter() - t0))
-        bar.set_postfix(train=f"{history[-1]['train_loss']:.3f}", val=f"{val:.3f}")
-    return model, history
+            step += 1
+            plan.step_done()
+            bar.update(1)
+            if budget.is_validation_step(step):
+                val = evaluate_loss(model, val_seqs, delay, device) if val_seqs else float("nan")
+                model.train()
+                history.append(dict(step=step, epoch=step / steps_per_epoch, train_loss=total / max(count, 1),
+                                    val_loss=val, seconds=time.perf_counter() - t0))
+                total, count = 0.0, 0.0
+                bar.set_postfix(train=f"{history[-1]['train_loss']:.3f}", val=f"{val:.3f}")
+                stop = stopper.update(step, val, model.state_dict())
+            if stop or step >= budget.steps:
+                break
+    bar.close()
+    kept = step
+    if budget.patience is not None and stopper.best_state is not None and stopper.best_step != step:
+        model.load_state_dict(stopper.best_state)
+        kept = stopper.best_step
+    if stop:
+        log.info("LSTM %s (d=%d): early stop at step %d of %d (no gain for %d validations); keeping step %d "
+                 "(val loss %.4f)", desc, delay, step, budget.steps, budget.patience, kept, stopper.best_value)
+    model.eval()
+    return model, history, kept
 
 
 def evaluate_loss(model: DelayedLSTM, seqs: list, delay: int, device) -> float:

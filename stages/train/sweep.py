@@ -22,17 +22,17 @@ log = logging.getLogger("lipsynth.sweep")
 
 def run(params: Params, ingest_path: str, pca_path: str) -> list[dict]:
     from pipeline.models.delayed_lstm import pick_device
-    from stages.train.train import feature_normalisation, fit_lstm, load_sequences, score
+    from stages.train.train import feature_normalisation, fit_lstm, kept_point, load_sequences, score
     p, s = params.train, params.delay_sweep
     data, basis, pattrs = load_sequences(ingest_path, pca_path)
     device = pick_device(p.device)
     mean, std = feature_normalisation(data, p.feature_norm)
     rows = []
     for d in s.delays:
-        _, hist, preds = fit_lstm(data, dataclasses.replace(p, epochs=s.epochs), d, device, mean, std, desc="sweep")
-        sc = score(preds, data, basis, pattrs["iod_px"])
-        rows.append(dict(delay_steps=d, delay_ms=10 * d, train_loss=hist[-1]["train_loss"],
-                         val_loss=hist[-1]["val_loss"], val_mouth_error_px=sc["mouth_error_px"],
+        _, hist, preds, kept = fit_lstm(data, dataclasses.replace(p, steps=s.steps), d, device, mean, std, desc="sweep")
+        sc, best = score(preds, data, basis, pattrs["iod_px"]), kept_point(hist, kept)
+        rows.append(dict(delay_steps=d, delay_ms=10 * d, steps=kept, train_loss=best["train_loss"],
+                         val_loss=best["val_loss"], val_mouth_error_px=sc["mouth_error_px"],
                          median_opening_corr=sc["median_opening_corr"]))
         log.info("delay %3d ms: val loss %.4f, mouth error %.3f px", 10 * d, rows[-1]["val_loss"],
                  rows[-1]["val_mouth_error_px"])

@@ -15,6 +15,7 @@ import csv
 import json
 import logging
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ import numpy as np
 from pipeline.audio import front_ends
 from pipeline.errors import LipsynthError, ParameterError
 from pipeline.params import Params, Train, as_dict
-from pipeline.io.runner import stage_main
+from pipeline.io.runner import stage_main, write_timing
 from pipeline.io.store import atomic_output, open_group
 from pipeline.measures import mouth_metrics
 from pipeline.models.speaker_bank import export_speaker
@@ -121,10 +122,15 @@ def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm"):
         if "x_aug" not in s:
             return norm(s)
         return (np.concatenate([s["x"][None], s["x_aug"]]) - mean) / std, s["y"], s["ok"]
-    model, history = lstm.train([norm_train(s) for s in data["train"]], [norm(s) for s in data["val"]], p, delay,
-                                device, seed=p.seed, desc=desc)
+    model, history, kept = lstm.train([norm_train(s) for s in data["train"]], [norm(s) for s in data["val"]], p, delay,
+                                      device, seed=p.seed, desc=desc)
     preds = [lstm.predict_sequence(model, norm(s)[0], delay, device) for s in data["val"]]
-    return model, history, preds
+    return model, history, preds, kept
+
+
+def kept_point(history: list[dict], kept: int) -> dict:
+    """The validation point of the step whose weights were kept."""
+    return next(h for h in history if h["step"] == kept)
 
 
 def score(preds100: list, data: dict, basis: dict, iod_px: float) -> dict:
@@ -138,6 +144,7 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     """Train ``train.model``; the model folder also gets the speaker (identity, 3D model, candidate
     bank, ``pipeline/models/speaker_bank``) when the landmarks and frontalize stores are given."""
     from pipeline.models.delayed_lstm import pick_device
+    clock_start = time.perf_counter()
     p = params.train
     if p.model not in MODELS:
         raise ParameterError(f"train.model={p.model!r}: choose one of {', '.join(MODELS)}")
@@ -160,18 +167,24 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     log.info("training %s (%s features, %d-D) on %d videos (%d steps), validating on %d videos, device %s", p.model,
              p.features, mean.shape[0], len(data["train"]), sum(len(s["x"]) for s in data["train"]), len(data["val"]),
              device)
-    model, history, preds = fit_lstm(data, p, p.delay, device, mean, std)
-    metrics = {"model": p.model, "features": p.features, "delay_steps": p.delay, "train_loss": history[-1]["train_loss"],
-               "val_loss": history[-1]["val_loss"], "val": score(preds, data, basis, pattrs["iod_px"])}
+    t0 = time.perf_counter()
+    model, history, preds, kept = fit_lstm(data, p, p.delay, device, mean, std)
+    clock = {"fit_s": time.perf_counter() - t0, "steps": history[-1]["step"]}
+    clock["seconds_per_step"] = clock["fit_s"] / max(clock["steps"], 1)
+    best = kept_point(history, kept)
+    metrics = {"model": p.model, "features": p.features, "delay_steps": p.delay, "steps_run": history[-1]["step"],
+               "step_kept": kept, "train_loss": best["train_loss"], "val_loss": best["val_loss"],
+               "val": score(preds, data, basis, pattrs["iod_px"])}
     k = basis["components"].shape[0]
     mean_shape = np.concatenate([s["y"][s["ok"]] for s in data["train"]]).mean(0)
     metrics["baseline_mean_shape"] = score([np.tile(mean_shape, (len(s["x"]), 1)) for s in data["val"]],
                                            data, basis, pattrs["iod_px"])
     curves = {f"{p.model}": history}
     if p.baselines and p.delay != 0:
-        _, h0, preds0 = fit_lstm(data, p, 0, device, mean, std, desc="baseline")
+        _, h0, preds0, kept0 = fit_lstm(data, p, 0, device, mean, std, desc="baseline")
+        best0 = kept_point(h0, kept0)
         metrics["baseline_lstm_delay0"] = dict(score(preds0, data, basis, pattrs["iod_px"]),
-                                               val_loss=h0[-1]["val_loss"], train_loss=h0[-1]["train_loss"])
+                                               val_loss=best0["val_loss"], train_loss=best0["train_loss"])
         curves[f"{p.model}_delay0"] = h0
     metrics["ratio_to_mean_shape"] = metrics["val"]["mouth_error_px"] / metrics["baseline_mean_shape"]["mouth_error_px"]
     log.info("validation mouth error: %s %.3f px (%.2f%% IOD); mean shape %.3f px; ratio %.2f",
@@ -186,6 +199,7 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
             metrics["speaker"] = export_speaker(tmp, ingest_path, landmarks_path, frontalize_path,
                                                 p.bank_frames, p.identity_frames)
     write_outputs(metrics, curves, p)
+    write_timing("train", dict(clock, total_s=time.perf_counter() - clock_start))     # untracked: outputs stay deterministic
     return metrics
 
 
@@ -199,10 +213,10 @@ def write_outputs(metrics: dict, curves: dict, p: Train) -> None:
     tmp = p.plots + ".tmp"
     with open(tmp, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["model", "epoch", "train_loss", "val_loss"])
+        w.writerow(["model", "step", "epoch", "train_loss", "val_loss"])
         for name, hist in curves.items():
             for h in hist:
-                w.writerow([name, h["epoch"], f"{h['train_loss']:.5f}", f"{h['val_loss']:.5f}"])
+                w.writerow([name, h["step"], f"{h['epoch']:.3f}", f"{h['train_loss']:.5f}", f"{h['val_loss']:.5f}"])
     os.replace(tmp, p.plots)
 
 

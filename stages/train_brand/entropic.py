@@ -28,11 +28,14 @@ from __future__ import annotations
 
 import logging
 
+import time
+
 import numpy as np
 from hmmlearn.hmm import GaussianHMM
 from scipy.special import lambertw
 
 from pipeline.errors import LipsynthError
+from pipeline.models.training_budget import format_duration
 
 log = logging.getLogger("lipsynth.train_brand")
 PRIORS = ("entropic", "ml")
@@ -174,9 +177,14 @@ def fit(X: np.ndarray, lengths: np.ndarray, n_states: int, prior: str, iteration
         raise LipsynthError(f"prior {prior!r}: choose one of {', '.join(PRIORS)}")
     from tqdm import tqdm
     model = PuppetHMM(n_states, prior, trimming, reg, seed, weight)
-    history, previous = [], -np.inf
+    history, previous, t0 = [], -np.inf, time.perf_counter()
     bar = tqdm(range(iterations), desc=desc, unit="it", leave=False)
     for it in bar:
+        if it == 2:                             # the first two iterations measure this machine's speed
+            per_it = (time.perf_counter() - t0) / 2
+            log.info("plan — %s: at most %d EM iterations over %s frames (stops when the log posterior per frame "
+                     "gains < %g) ≈ %s at most on this machine (%.2f s/iteration measured)", desc, iterations,
+                     f"{len(X):,}", tol, format_duration(iterations * per_it), per_it)
         # the E-step's likelihood belongs to the parameters it ran with: pair it with their prior
         log_prior = -weight * model_entropy(model) if prior == "entropic" and it > 0 else 0.0
         model.fit(X, lengths)

@@ -16,6 +16,7 @@ import torch
 
 from pipeline.models.karras_network import KarrasNetwork
 from pipeline.audio.speech_autocorrelation import padded_track, windows
+from pipeline.models.training_budget import Budget, EarlyStopping, StepPlan
 from stages.train_karras import objective
 from stages.train_karras.targets import training_pairs
 
@@ -24,7 +25,7 @@ log = logging.getLogger("lipsynth.train_karras")
 
 @dataclass
 class FitConfig:
-    epochs: int = 500
+    steps: int = 12000              # optimizer steps (500 epochs of 1,200 frames = the paper's schedule, §4.5)
     batch: int = 100                # 50 temporal pairs (§4.5)
     lr: float = 1e-3
     emotion_dim: int = 16
@@ -34,6 +35,9 @@ class FitConfig:
     time_shift: bool = True
     seed: int = 0
     device: str = "cpu"
+    val_every: int = 100            # steps between validation points (on_validation is called there)
+    patience: int | None = None     # validation points without improvement before stopping (None: never)
+    min_delta: float = 0.0
 
 
 def target_pca(y: np.ndarray, k: int = 150) -> tuple[np.ndarray, np.ndarray]:
@@ -56,12 +60,18 @@ def batch_inputs(videos, rows: np.ndarray, shifts: np.ndarray):
     return np.stack(x)[:, None], np.stack(y)
 
 
-def fit(videos: list[dict], config: FitConfig, progress: bool = True, on_epoch=None):
-    """Train on the ``train`` videos; returns (network, emotions (N, E) — one per frame of the
-    training videos, in their order — and the history: per epoch the mean raw loss terms, plus
-    whatever ``on_epoch(epoch, net, emotions)`` returns (e.g. validation figures))."""
+def fit(videos: list[dict], config: FitConfig, progress: bool = True, on_validation=None, log_plan=None):
+    """Train on the ``train`` videos for ``config.steps`` optimizer steps; returns (network,
+    emotions (N, E) — one per frame of the training videos, in their order — and the history: per
+    validation point (every ``config.val_every`` steps and at the end) the step, the epoch (an
+    epoch: as many samples as training frames) and the mean raw loss terms since the previous
+    point, plus whatever ``on_validation(step, net, emotions)`` returns (e.g. validation figures; its
+    ``val_position`` drives early stopping when ``config.patience`` is set: the network and the
+    emotions of the best point are returned)). The paper's schedule (§4.5) is stretched over the
+    budget: the learning-rate ramp-up over the first epoch, 1/√epoch decay, the ramp-down at the end."""
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
+    budget = Budget(config.steps, config.val_every, config.patience, config.min_delta).check("karras")
     train = [v for v in videos if v["split"] == "train"]
     pairs = training_pairs(train)
     if len(pairs) < config.batch:
@@ -76,14 +86,16 @@ def fit(videos: list[dict], config: FitConfig, progress: bool = True, on_epoch=N
     opt = torch.optim.Adam(list(net.parameters()) + [emotions], lr=config.lr)
     loss_fn = objective.KarrasLoss(use_motion=config.motion, use_emotion=config.emotions)
     per_epoch = max(1, len(pairs) // config.batch)          # an epoch: as many samples as training frames
-    history = []
+    total_epochs = budget.steps / per_epoch
+    plan = StepPlan("Karras", budget, per_epoch, f"{int(offsets[-1]):,} frames", log_plan or log, calibrate=3)
+    stopper = EarlyStopping(budget)
+    history, sums, n_sums, step = [], {}, 0, 0
     from tqdm import tqdm
-    bar = tqdm(range(config.epochs), desc="karras", unit="epoch", leave=False, disable=not progress)
-    for epoch in bar:
+    bar = tqdm(total=budget.steps, desc="karras", unit="step", leave=False, disable=not progress)
+    while step < budget.steps:
         order = rng.permutation(len(pairs))
-        sums = {}
         for b in range(per_epoch):
-            lr, beta1 = objective.schedule(epoch + b / per_epoch, config.epochs, config.lr)
+            lr, beta1 = objective.schedule(step / per_epoch, total_epochs, config.lr)
             for g in opt.param_groups:
                 g["lr"], g["betas"] = lr, (beta1, g["betas"][1])
             p = pairs[order[b * (config.batch // 2):(b + 1) * (config.batch // 2)]]
@@ -99,13 +111,31 @@ def fit(videos: list[dict], config: FitConfig, progress: bool = True, on_epoch=N
             loss.backward()
             opt.step()
             for k, v in parts.items():
-                sums[k] = sums.get(k, 0.0) + v / per_epoch
-        row = dict(epoch=epoch + 1, **sums)
-        if on_epoch is not None:
-            net.eval()
-            with torch.no_grad():
-                row.update(on_epoch(epoch + 1, net, emotions.detach()) or {})
-            net.train()
-        history.append(row)
-        bar.set_postfix(position=f"{sums['position']:.3f}")
+                sums[k] = sums.get(k, 0.0) + v
+            n_sums, step = n_sums + 1, step + 1
+            plan.step_done()
+            bar.update(1)
+            if not budget.is_validation_step(step):
+                continue
+            row = dict(step=step, epoch=step / per_epoch, **{k: v / n_sums for k, v in sums.items()})
+            sums, n_sums = {}, 0
+            if on_validation is not None:
+                net.eval()
+                with torch.no_grad():
+                    row.update(on_validation(step, net, emotions.detach()) or {})
+                net.train()
+            history.append(row)
+            bar.set_postfix(position=f"{row['position']:.3f}")
+            if "val_position" in row and stopper.update(step, row["val_position"], (net.state_dict(), emotions.detach())):
+                log.info("Karras: early stop at step %d of %d (no gain for %d validations); keeping step %d",
+                         step, budget.steps, budget.patience, stopper.best_step)
+                step = budget.steps
+            if step >= budget.steps:
+                break
+    bar.close()
+    if budget.patience is not None and stopper.best_state is not None and stopper.best_step != history[-1]["step"]:
+        state, best_emotions = stopper.best_state
+        net.load_state_dict(state)
+        emotions = best_emotions
+        history[-1]["kept_step"] = stopper.best_step
     return net, emotions.detach().cpu().numpy(), history

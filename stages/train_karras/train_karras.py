@@ -7,8 +7,9 @@
    them totalling that much speech (the paper trains on 3–5 minutes, §4.5).
 3. Training (``fit``, §4): temporal pairs, one learned emotion per frame, time shifts, feature-map
    noise, the self-normalised position + motion + emotion loss, Adam with the paper's schedule.
-   Every ``karras.val_every`` epochs: the position loss on a fixed sample of validation frames
-   (the validation curve).
+   The budget is ``karras.steps`` optimizer steps (``pipeline.models.training_budget``); every
+   ``karras.val_every`` steps: the position loss on a fixed sample of validation frames (the
+   validation curve), which stops the run early when ``karras.patience`` is set.
 4. Emotion mining (``emotions``, §5.1) → a few robust emotion vectors; candidate 0 is the default.
 5. Evaluation on the validation videos (the LSTM's split) through the shared predict path (two
    inferences 4 ms apart, default emotion) at each video's frame rate, scored like the LSTM
@@ -102,25 +103,24 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
     xv, yv = validation_sample(val, k.val_frames, k.seed)
     xv_t = torch.as_tensor(xv, device=device)
     log.info("Karras et al.: %d of %d training videos (%.1f min of speech, %d frames), %d validation videos "
-             "(%d sampled frames for the curve), %d outputs (%d face points), %d epochs on %s",
+             "(%d sampled frames for the curve), %d outputs (%d face points), %d steps on %s",
              len(train), len(train_all), seconds / 60, sum(len(v["targets"]) for v in train), len(val), len(yv),
-             2 * len(FACE_POINTS), len(FACE_POINTS), k.epochs, device)
+             2 * len(FACE_POINTS), len(FACE_POINTS), k.steps, device)
 
-    def on_epoch(epoch, net, emo):
-        if epoch % k.val_every and epoch != k.epochs:
-            return {}
+    def on_validation(step, net, emo):
         e = emo.mean(0, keepdim=True).to(device)
         out = np.concatenate([net(xv_t[i:i + 512], e.expand(len(xv_t[i:i + 512]), -1)).cpu().numpy()
                               for i in range(0, len(xv_t), 512)])
         err = np.linalg.norm((out - yv).reshape(len(yv), -1, 2), axis=-1).mean()
-        log.debug("epoch %d: validation position %.4f px², error %.3f px", epoch, ((out - yv) ** 2).mean(), err)
+        log.debug("step %d: validation position %.4f px², error %.3f px", step, ((out - yv) ** 2).mean(), err)
         return dict(val_position=float(((out - yv) ** 2).mean()), val_error_px=float(err))
 
-    config = FitConfig(epochs=k.epochs, batch=k.batch, lr=k.lr, emotion_dim=k.emotion_dim,
+    config = FitConfig(steps=k.steps, batch=k.batch, lr=k.lr, emotion_dim=k.emotion_dim,
                        emotion_sigma=k.emotion_sigma, motion=k.motion, emotions=k.emotions,
-                       time_shift=k.time_shift, seed=k.seed, device=device)
+                       time_shift=k.time_shift, seed=k.seed, device=device, val_every=k.val_every,
+                       patience=k.patience, min_delta=k.min_delta)
     t0 = time.perf_counter()
-    net, database, history = fit(videos=[dict(v, split="train") for v in train], config=config, on_epoch=on_epoch)
+    net, database, history = fit(videos=[dict(v, split="train") for v in train], config=config, on_validation=on_validation)
     clock["fit_s"] = time.perf_counter() - t0
     net = net.cpu().eval()
     sources = [(v["name"], i) for v in train for i in range(len(v["targets"]))]
@@ -155,7 +155,9 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
         [pca_frames[v["name"]][0] for v in val], [pca_frames[v["name"]][1] for v in val],
         [v["fps"] for v in val], basis, attrs["iod_px"])
     metrics = dict(model="karras", training_videos=len(train), training_seconds=seconds,
-                   training_frames=int(sum(len(v["targets"]) for v in train)), epochs=k.epochs,
+                   training_frames=int(sum(len(v["targets"]) for v in train)), steps=k.steps,
+                   steps_run=history[-1]["step"], step_kept=history[-1].get("kept_step", history[-1]["step"]),
+                   epochs=round(history[-1]["epoch"], 3),
                    val=val_scores, baseline_mean_shape=baseline,
                    ratio_to_mean_shape=val_scores["mouth_error_px"] / baseline["mouth_error_px"],
                    final_val_error_px=history[-1].get("val_error_px"), emotions=mined["steps"],
@@ -169,7 +171,7 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
              100 * val_scores["av_within_one_frame"], baseline["mouth_error_px"], metrics["ratio_to_mean_shape"],
              len(mined["candidates"]))
     write_outputs(metrics, history, k)                 # timings go to logs/ only: the metrics stay deterministic
-    clock["seconds_per_epoch"] = clock["fit_s"] / max(k.epochs, 1)
+    clock["seconds_per_step"] = clock["fit_s"] / max(history[-1]["step"], 1)
     clock["total_s"] = time.perf_counter() - clock.pop("start")
     write_timing("train_karras", clock)
     return metrics
@@ -195,12 +197,12 @@ def write_outputs(metrics: dict, history: list[dict], k) -> None:
     os.replace(tmp, k.metrics)
     Path(k.plots).parent.mkdir(parents=True, exist_ok=True)
     tmp = k.plots + ".tmp"
-    cols = ["epoch", "position", "motion", "emotion", "val_position", "val_error_px"]
+    cols = ["step", "epoch", "position", "motion", "emotion", "val_position", "val_error_px"]
     with open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(cols)
         for h in history:
-            w.writerow([h["epoch"]] + [f"{h[c]:.6g}" if c in h else "" for c in cols[1:]])
+            w.writerow([h["step"]] + [f"{h[c]:.6g}" if c in h else "" for c in cols[1:]])
     os.replace(tmp, k.plots)
 
 
