@@ -98,7 +98,7 @@ def main() -> int:
         rows[name] = dict(score(preds, data, basis, iod), inference_ms_per_frame=ms,
                           training_seconds=cfg.get("training_seconds"), ablation={k: cfg["params"][k] for k in
                                                                                    ("motion", "emotions", "time_shift")},
-                          epochs=cfg["params"]["epochs"])
+                          steps=cfg["params"].get("steps"), epochs=cfg["params"].get("epochs"))
         if i == 0 and a.no_ensemble:
             from pipeline.models import karras_inference
             from pipeline.models.model_folder import load_karras

@@ -8,10 +8,10 @@ from tests.test_dvc_pipeline import copy_project, dvc
 
 TINY = {
     "synthetic_speaker": {"n_videos": 3, "seconds_per_video": 4.0},
-    "train": {"epochs": 15, "baselines": False},
+    "train": {"steps": 15, "baselines": False},
     "brand": {"states": 6, "iterations": 10, "baseline": False},
-    "karras": {"epochs": 2, "mine_candidates": 200},
-    "delay_sweep": {"delays": [0, 20], "epochs": 5},
+    "karras": {"steps": 2, "val_every": 2, "mine_candidates": 200},
+    "delay_sweep": {"delays": [0, 20], "steps": 5},
     "synthesize": {"audio": "data/synthetic_speaker/speaker_02.mp4", "pool_min": 100},
     "composite": {"diagnostic": False},
 }

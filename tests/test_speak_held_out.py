@@ -35,7 +35,8 @@ def grid_model(tmp_path_factory):
     p = make_params(out, [str(c) for c in clips], data=dict(on_bad_input="skip", val_fraction=0.1),
                     pca=dict(out=str(out / "pca.zarr")),
                     train=dict(out=str(out / "model"), metrics=str(out / "train.json"),
-                               plots=str(out / "loss.csv"), baselines=False))
+                               plots=str(out / "loss.csv"), baselines=False,
+                               steps=2400, val_every=240))          # 300 epochs of 8 steps on these 268 training clips
     (out / "params.yaml").write_text(yaml.safe_dump(as_dict(p)))
     run_preprocessing(p)
     pca.run(p, p.ingest.out, p.landmarks.out, p.frontalize.out, p.pca.out)

@@ -6,7 +6,7 @@ Every gradient-trained family (the LSTM, its delay sweep, Karras et al.) runs fo
 - a step costs one minibatch, whose size is fixed by the params (LSTM: ≤ ``batch_size`` streams ×
   ``bptt`` steps; Karras: ``batch`` samples), so N steps take about the same time on 45 s and on
   17 h of footage — an epoch grows with the corpus (one LSTM step per epoch on the synthetic
-  speaker, 27 on GRID s1's 45 min, ~600 on 17 h);
+  speaker, 21 on GRID s1's 45 min, ~600 on 17 h);
 - a wall-clock cap would make the weights depend on the machine's speed and load, and DVC could
   no longer trust its cache (the same inputs must give the same outputs).
 
