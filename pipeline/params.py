@@ -178,7 +178,7 @@ class Karras:
     metrics: str = "metrics/train_karras.json"
     plots: str = "plots/train_karras_loss.csv"
     train_seconds: float | None = None
-    steps: int = 144
+    steps: int = 120
     batch: int = 100
     lr: float = 0.003
     emotion_dim: int = 16

@@ -58,3 +58,19 @@ def test_a_stage_refuses_a_bad_params_file_with_one_line(tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [f"lipsynth: error: {tmp_path / 'p.yaml'}: unknown key landmarks.detect_evry "
                                              f"(known keys: {', '.join(sorted(as_dict(Params().landmarks)))})"]
+
+
+def test_stage_main_records_the_wall_time_of_a_stage_that_succeeds_only(tmp_path, monkeypatch):
+    import json
+    from pipeline.errors import LipsynthError
+    from pipeline.io.runner import stage_main
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(shipped()))
+    assert stage_main("lipsynth delay-sweep", "", lambda p: None, []) == 0
+
+    def fail(p):
+        raise LipsynthError("no")
+    assert stage_main("lipsynth train-karras", "", fail, []) == 2
+    table = json.loads((tmp_path / "logs" / "stage_seconds.json").read_text())
+    assert set(table) == {"delay_sweep"} and 0 <= table["delay_sweep"] < 5
+    assert not list((tmp_path / "logs").glob("*.tmp-*"))

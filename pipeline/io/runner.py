@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
+import time
 from pathlib import Path
 
 from pipeline.errors import LipsynthError
@@ -48,4 +50,23 @@ def stage_main(prog: str, doc: str, run, argv=None) -> int:
     ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     a = ap.parse_args(argv)
     setup_logging(a.verbose)
-    return run_main(lambda: run(load_params(a.params)))
+    t0 = time.perf_counter()
+    code = run_main(lambda: run(load_params(a.params)))
+    if code == 0:
+        record_wall_time(prog.split()[1].replace("-", "_"), time.perf_counter() - t0)
+    return code
+
+
+def record_wall_time(stage: str, seconds: float, folder: str = "logs") -> Path:
+    """Add a stage's wall time (s, its work after start-up) to ``logs/stage_seconds.json`` (untracked)."""
+    path = Path(folder) / "stage_seconds.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        table = json.loads(path.read_text())
+    except (OSError, ValueError):
+        table = {}
+    table[stage] = round(seconds, 1)
+    tmp = path.with_name(path.name + f".tmp-{os.getpid()}")
+    tmp.write_text(json.dumps(table, indent=2) + "\n")
+    os.replace(tmp, path)
+    return path

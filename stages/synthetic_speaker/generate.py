@@ -41,6 +41,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.errors import LipsynthError, ParameterError
+from pipeline.io.runner import record_wall_time
 from pipeline.params import SyntheticSpeaker, as_dict, load_params
 from stages.synthetic_speaker import articulation, face_template, language, mux, render, speech
 
@@ -257,6 +258,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     log.info("wrote %d videos to %s in %.1f s", settings["n_videos"], out_dir,
              time.perf_counter() - started)
+    record_wall_time("synthetic_speaker", time.perf_counter() - started)
     return 0
 
 
