@@ -145,6 +145,7 @@ def write_fixture_project(tmp_path, video_seconds=2.0, fps=25.0):
     tree = as_dict(Params())
     tree["train"].update(metrics=str(tmp_path / "train.json"), plots=str(tmp_path / "loss.csv"))
     tree["brand"].update(metrics=str(tmp_path / "brand.json"), plots=str(tmp_path / "brand.csv"))
+    tree["karras"].update(metrics=str(tmp_path / "karras.json"), plots=str(tmp_path / "karras.csv"))   # absent: no row
     tree["delay_sweep"]["plots"] = str(tmp_path / "sweep.csv")
     tree["evaluate"].update(out=str(tmp_path / "evaluate"), metrics=str(tmp_path / "evaluate.json"))
     tree["report"]["out"] = str(tmp_path / "report")
