@@ -84,12 +84,11 @@ class StepPlan:
         self.log, self.calibrate = log, max(1, min(calibrate, budget.steps))
         self.t0, self.done, self.seconds_per_step = time.perf_counter(), 0, None
 
-    def step_done(self, seconds: float | None = None) -> None:
-        """Count one optimizer step (``seconds``: its own time, validation excluded)."""
+    def step_done(self) -> None:
+        """Count one optimizer step; after ``calibrate`` of them, log the plan with their mean time."""
         self.done += 1
         if self.seconds_per_step is None and self.done == self.calibrate:
-            elapsed = time.perf_counter() - self.t0 if seconds is None else seconds
-            self.seconds_per_step = elapsed / self.calibrate if seconds is None else seconds
+            self.seconds_per_step = (time.perf_counter() - self.t0) / self.calibrate
             self.log.info("plan — %s", plan_text(self.name, self.budget, self.steps_per_epoch, self.epoch_unit,
                                                  self.seconds_per_step))
 
@@ -104,11 +103,14 @@ class EarlyStopping:
 
     def update(self, step: int, value: float, state) -> bool:
         """Record the validation ``value`` after ``step``; ``state`` (any object: state dicts,
-        tensors) is deep-copied when it is the best so far. True when the run should stop."""
+        tensors) is deep-copied when it is the best so far and ``patience`` is set (the caller then
+        restores it). True when the run should stop."""
         if not math.isfinite(value):
             return False
-        if value < self.best_value * (1 - self.budget.min_delta) or self.best_state is None:
-            self.best_value, self.best_step, self.best_state, self.flat = value, step, copy.deepcopy(state), 0
+        if value < self.best_value * (1 - self.budget.min_delta) or self.best_step == 0:
+            # the copy is only needed when the run may stop early and go back to it
+            kept = copy.deepcopy(state) if self.budget.patience is not None else None
+            self.best_value, self.best_step, self.best_state, self.flat = value, step, kept, 0
             return False
         self.flat += 1
         return self.budget.patience is not None and self.flat >= self.budget.patience
