@@ -114,10 +114,11 @@ def front_end_advice(config: dict) -> str:
     """Which front end suits audio far from the training voice, for a model with ``config``
     (measured by bench/cross_speaker.py on GRID s1 models, see the README)."""
     features = config.get("features", "mfcc")
-    warps = (config.get("params") or {}).get("vtlp_warps") or []
-    if front_ends.uses_mfcc(features) and not warps:
-        return ("a model trained with the shipped augmentation (train.vtlp_warps, train.pitch_shifts, "
-                "train.feature_norm: utterance) follows other voices better")
+    if features == "whisper":
+        return "this model's front end (Whisper's encoder) was trained on many voices; lip sync on far voices may still be weaker"
+    if front_ends.uses_mfcc(features):
+        return ("a model trained on the whisper front end (train.features: whisper; pretrained on many speakers) "
+                "follows other voices better")
     if features == "phonetic":
         return "this model's phone indicators do not depend on the voice, but expect the lips to lag by a few frames"
     return "this model already has the most voice-robust front end measured; lip sync on other voices stays weaker"

@@ -121,6 +121,13 @@ class Phonetic:
 
 
 @dataclass
+class Whisper:
+    out: str = "store/whisper.zarr"
+    window_seconds: float = 10.0
+    overlap_seconds: float = 2.0
+
+
+@dataclass
 class Train:
     model: str = "lstm"
     out: str = "models/lstm"
@@ -147,7 +154,7 @@ class Train:
     identity_frames: int = 60
 
     CHOICES = {"model": ("lstm",), "feature_norm": ("corpus", "utterance"),
-               "features": ("mfcc", "phonetic", "mfcc+phonetic")}
+               "features": ("mfcc", "phonetic", "mfcc+phonetic", "whisper")}
 
 
 @dataclass
@@ -157,6 +164,7 @@ class Brand:
     plots: str = "plots/train_brand.csv"
     rate: float = 25.0
     features: str = "mfcc"
+    voice_dims: int = 24
     face_dims: int = 12
     states: int = 26
     prior_weight: float = 1.0
@@ -169,7 +177,7 @@ class Brand:
     baseline: bool = True
     seed: int = 0
 
-    CHOICES = {"features": ("paper", "mfcc"), "decode": ("viterbi", "posterior")}
+    CHOICES = {"features": ("paper", "mfcc", "whisper"), "decode": ("viterbi", "posterior")}
 
 
 @dataclass
@@ -312,6 +320,7 @@ class Params:
     frontalize: Frontalize = field(default_factory=Frontalize)
     pca: Pca = field(default_factory=Pca)
     phonetic: Phonetic = field(default_factory=Phonetic)
+    whisper: Whisper = field(default_factory=Whisper)
     train: Train = field(default_factory=Train)
     brand: Brand = field(default_factory=Brand)
     karras: Karras = field(default_factory=Karras)

@@ -73,7 +73,7 @@ def project(tmp_path_factory):
     return proj
 
 
-STAGES = ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca", "phonetic", "train", "train_brand", "train_karras",
+STAGES = ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca", "phonetic", "whisper", "train", "train_brand", "train_karras",
           "render_mesh", "delay_sweep", "synthesize", "composite")
 
 
@@ -270,6 +270,38 @@ def test_phonetic_store_and_a_phonetic_model(project, tmp_path):
         q = predict_mouth(quiet, tmp_path / "m", 25)
         assert np.isfinite(q["lip_points"]).all()
         assert np.median(opening(q)) <= np.median(opening(out)) + 0.2, (np.median(opening(q)), np.median(opening(out)))
+
+
+@pytest.mark.slow
+def test_whisper_store_and_a_whisper_model(project, tmp_path):
+    """The whisper stage stores 384-D encoder states on the MFCC axis; its window reruns it and what
+    reads it (never ingest, phonetic, the face stages or Karras); a model trained on it records the
+    windowing and answers predict_mouth with finite shapes, for speech and for silence."""
+    from pipeline.models.mouth_prediction import load_audio, predict_mouth
+    wh, ing = zarr.open_group(str(project / "store" / "whisper.zarr")), zarr.open_group(str(project / "store" / "ingest.zarr"))
+    states = np.asarray(wh["states"][...], np.float32)
+    assert states.shape == (ing["mfcc"].shape[0], 384) and np.isfinite(states).all()
+    for v in wh.attrs["videos"]:
+        rows = states[v["first_mfcc"]:v["first_mfcc"] + v["n_mfcc"]]
+        assert rows.std(0).mean() > 0.05, v["name"]                 # every video's rows written, and moving
+    with edited_params(project, "whisper", "window_seconds", 8.0):
+        status = set(json.loads(dvc(project, "status", "--json").strip().splitlines()[-1]))
+    assert {"whisper", "train"} <= status, status
+    assert not {"ingest", "phonetic", "landmarks", "frontalize", "pca", "train_karras"} & status, status
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    params["train"].update(features="whisper", feature_norm="corpus", vtlp_warps=[], pitch_shifts=[], steps=15,
+                           baselines=False, out=str(tmp_path / "m"), metrics=str(tmp_path / "m.json"),
+                           plots=str(tmp_path / "m.csv"))
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    r = subprocess.run([sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")],
+                       cwd=project, capture_output=True, text=True, timeout=1200)
+    assert r.returncode == 0, r.stderr[-2000:]
+    cfg = json.loads((tmp_path / "m" / "config.json").read_text())
+    assert cfg["features"] == "whisper" and cfg["encoder"] == {"window_s": 10.0, "overlap_s": 2.0}
+    out = predict_mouth(load_audio(project / "data" / "synthetic_speaker" / "speaker_01.mp4"), tmp_path / "m", 25)
+    assert out["coeffs"].shape == (250, 20) and np.isfinite(out["coeffs"]).all()
+    quiet = predict_mouth(np.zeros(32000, np.float32), tmp_path / "m", 25)
+    assert np.isfinite(quiet["lip_points"]).all()
 
 
 @pytest.mark.slow

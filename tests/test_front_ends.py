@@ -116,9 +116,9 @@ def test_lstm_trains_on_augmented_copies():
 
 def test_speak_names_the_front_end_that_suits_another_voice():
     from lipsynth.speak import front_end_advice
-    assert "train.vtlp_warps" in front_end_advice(dict(features="mfcc", params=dict(vtlp_warps=[])))
-    assert "train.vtlp_warps" in front_end_advice(dict(features="mfcc+phonetic"))
-    assert "train.vtlp_warps" not in front_end_advice(dict(features="mfcc", params=dict(vtlp_warps=[0.9, 1.1])))
+    assert "train.features: whisper" in front_end_advice(dict(features="mfcc", params=dict(vtlp_warps=[])))
+    assert "train.features: whisper" in front_end_advice(dict(features="mfcc+phonetic"))
+    assert "train.features: whisper" not in front_end_advice(dict(features="whisper"))
     assert "phone indicators" in front_end_advice(dict(features="phonetic", params=dict(vtlp_warps=[])))
 
 

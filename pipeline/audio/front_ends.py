@@ -3,10 +3,13 @@
     mfcc            paper 000's 28-D MFCC (``pipeline.audio.audio_features``) — the paper-exact choice
     phonetic        40 pocketsphinx phone indicators (``pipeline.audio.phone_features``): speaker-independent
     mfcc+phonetic   both, concatenated (68-D): MFCC columns first
+    whisper         384-D encoder states of Whisper tiny.en (``pipeline.audio.whisper_encoder``): learned
+                    from many speakers; windowed as the ``whisper`` stage's params say (recorded in the model)
 
 All run at 100 Hz on the same time axis (frame t centred at t / 100 s). ``frame_features``
-computes them for new audio; the training stores hold the MFCC (ingest) and the phone
-indicators (the ``phonetic`` stage) so training reads the same numbers.
+computes them for new audio; the training stores hold the MFCC (ingest), the phone
+indicators (the ``phonetic`` stage) and the encoder states (the ``whisper`` stage) so training
+reads the same numbers.
 """
 from __future__ import annotations
 
@@ -16,8 +19,9 @@ from pipeline.audio.audio_features import FEATURE_DIM as MFCC_DIM
 from pipeline.audio.audio_features import cmvn, mfcc_features
 from pipeline.errors import ParameterError
 from pipeline.audio.phone_features import PHONE_DIM, phone_indicators
+from pipeline.audio.whisper_encoder import STATE_DIM as WHISPER_DIM
 
-FRONT_ENDS = ("mfcc", "phonetic", "mfcc+phonetic")
+FRONT_ENDS = ("mfcc", "phonetic", "mfcc+phonetic", "whisper")
 
 
 def check(front_end: str) -> None:
@@ -33,35 +37,54 @@ def uses_phones(front_end: str) -> bool:
     return front_end in ("phonetic", "mfcc+phonetic")
 
 
+def uses_whisper(front_end: str) -> bool:
+    return front_end == "whisper"
+
+
 def feature_dim(front_end: str) -> int:
     """Width D of ``front_end``'s frames."""
     check(front_end)
-    return MFCC_DIM * uses_mfcc(front_end) + PHONE_DIM * uses_phones(front_end)
+    return MFCC_DIM * uses_mfcc(front_end) + PHONE_DIM * uses_phones(front_end) + WHISPER_DIM * uses_whisper(front_end)
 
 
-def combine(front_end: str, mfcc: np.ndarray | None, phones: np.ndarray | None) -> np.ndarray:
-    """(T, D) float32 frames of ``front_end`` from (T, 28) MFCC and/or (T, 40) phone indicators."""
+def combine(front_end: str, mfcc: np.ndarray | None, phones: np.ndarray | None,
+            states: np.ndarray | None = None) -> np.ndarray:
+    """(T, D) float32 frames of ``front_end`` from (T, 28) MFCC, (T, 40) phone indicators and/or (T, 384)
+    encoder states."""
     check(front_end)
-    parts = ([mfcc] if uses_mfcc(front_end) else []) + ([phones] if uses_phones(front_end) else [])
+    parts = ([mfcc] if uses_mfcc(front_end) else []) + ([phones] if uses_phones(front_end) else []) + \
+        ([states] if uses_whisper(front_end) else [])
     if any(p is None for p in parts):
         raise ParameterError(f"front end {front_end!r} needs {'MFCC and phone indicators' if len(parts) > 1 else 'its features'}")
     n = min(len(p) for p in parts)
     return np.concatenate([np.asarray(p[:n], np.float32) for p in parts], axis=1)
 
 
-def frame_features(samples: np.ndarray, front_end: str) -> np.ndarray:
-    """(T, D) frames of ``front_end`` for 16 kHz mono RMS-normalised ``samples``, T = 1 + S // 160."""
+def frame_features(samples: np.ndarray, front_end: str, encoder: dict | None = None) -> np.ndarray:
+    """(T, D) frames of ``front_end`` for 16 kHz mono RMS-normalised ``samples``, T = 1 + S // 160.
+
+    ``encoder``: the whisper window settings the model was trained with (``window_s``, ``overlap_s``;
+    default 10 s and 2 s)."""
     check(front_end)
     mfcc = mfcc_features(samples) if uses_mfcc(front_end) else None
     phones = phone_indicators(samples) if uses_phones(front_end) else None
-    return combine(front_end, mfcc, phones)
+    states = None
+    if uses_whisper(front_end):
+        from pipeline.audio.whisper_encoder import whisper_features
+        e = encoder or {}
+        states = whisper_features(samples, 1 + len(samples) // 160, e.get("window_s", 10.0), e.get("overlap_s", 2.0),
+                                  e.get("threads", 1))
+    return combine(front_end, mfcc, phones, states)
 
 
 def utterance_norm(x: np.ndarray, front_end: str) -> np.ndarray:
-    """Per-utterance CMVN of the MFCC columns (``train.feature_norm: utterance``); indicators stay 0/1."""
+    """Per-utterance CMVN of the MFCC columns and of the encoder states (``train.feature_norm: utterance``);
+    indicators stay 0/1."""
     x = np.array(x, np.float32)
     if uses_mfcc(front_end):
         x[:, :MFCC_DIM] = cmvn(x[:, :MFCC_DIM])
+    if uses_whisper(front_end):
+        x[:, -WHISPER_DIM:] = cmvn(x[:, -WHISPER_DIM:])
     return x
 
 

@@ -11,6 +11,8 @@ frequencies" and band energies. ``kind="paper"`` builds that mix from maintained
                  → 33 values per 10 ms
 
 ``kind="mfcc"`` is the project's 28-D MFCC (13 cepstra, log energy, their deltas; paper 000).
+``kind="whisper"`` is the 384-D encoder states of Whisper tiny.en (``pipeline.audio.whisper_encoder``,
+default windows); the Voice Puppetry stage projects them on a PCA of its training voice.
 Both are computed at 100 Hz and averaged over each output frame's period (frame k covers
 [k − ½, k + ½) / rate seconds), so a model trained at 25 Hz reads 4 feature frames per state.
 The audio is dithered (±1e-5 full scale, fixed seed) so digital silence gives finite values.
@@ -22,11 +24,11 @@ import numpy as np
 from pipeline.audio import audio_features
 from pipeline.errors import BadInputError, ParameterError
 
-KINDS = ("paper", "mfcc")
+KINDS = ("paper", "mfcc", "whisper")
 LPC_ORDER = 12
 RPLP_ORDER = 13
 BANDS_HZ = ((0, 500), (500, 1000), (1000, 2000), (2000, 4000), (4000, 8000))
-DIMS = {"paper": LPC_ORDER + RPLP_ORDER + 3 + len(BANDS_HZ), "mfcc": audio_features.FEATURE_DIM}
+DIMS = {"paper": LPC_ORDER + RPLP_ORDER + 3 + len(BANDS_HZ), "mfcc": audio_features.FEATURE_DIM, "whisper": 384}
 DITHER = 1e-5
 
 
@@ -73,10 +75,16 @@ def band_energies(samples: np.ndarray) -> np.ndarray:
     return np.stack([np.log(power[:, (hz >= lo) & (hz < hi)].sum(1) + audio_features.EPS) for lo, hi in BANDS_HZ], 1)
 
 
-def features_100hz(samples: np.ndarray, kind: str) -> np.ndarray:
-    """(1 + S // 160, DIMS[kind]) features of 16 kHz mono samples; row t is centred at t / 100 s."""
+def features_100hz(samples: np.ndarray, kind: str, encoder: dict | None = None) -> np.ndarray:
+    """(1 + S // 160, DIMS[kind]) features of 16 kHz mono samples; row t is centred at t / 100 s.
+    ``encoder``: whisper window settings (``window_s``, ``overlap_s``) for ``kind="whisper"``."""
     if kind not in KINDS:
         raise ParameterError(f"vocal features {kind!r}: choose one of {', '.join(KINDS)}")
+    if kind == "whisper":
+        from pipeline.audio.whisper_encoder import whisper_features
+        e = encoder or {}
+        return whisper_features(np.asarray(samples, np.float32), None, e.get("window_s", 10.0),
+                                e.get("overlap_s", 2.0)).astype(np.float64)
     x = _dithered(samples)
     if kind == "mfcc":
         return audio_features.mfcc_features(x.astype(np.float32)).astype(np.float64)
@@ -107,7 +115,8 @@ def pool_to_rate(f100: np.ndarray, n_frames: int, rate: float) -> np.ndarray:
     return out
 
 
-def vocal_features(samples: np.ndarray, kind: str, rate: float, n_frames: int, source="audio") -> np.ndarray:
+def vocal_features(samples: np.ndarray, kind: str, rate: float, n_frames: int, source="audio",
+                   encoder: dict | None = None) -> np.ndarray:
     """(n_frames, DIMS[kind]) features of 16 kHz mono ``samples`` at ``rate`` frames/s.
 
     Raises BadInputError naming ``source`` when the audio holds less than one frame or the
@@ -115,7 +124,7 @@ def vocal_features(samples: np.ndarray, kind: str, rate: float, n_frames: int, s
     """
     if n_frames < 1 or len(samples) < audio_features.WIN:
         raise BadInputError(source, f"audio too short for one {1000 / rate:.0f} ms frame of the voice model")
-    f = pool_to_rate(features_100hz(samples, kind), n_frames, rate)
+    f = pool_to_rate(features_100hz(samples, kind, encoder), n_frames, rate)
     if not np.isfinite(f).all():
         raise BadInputError(source, f"{kind} voice features are not finite (NaN/inf) — is the audio valid?")
     return f

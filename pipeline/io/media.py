@@ -160,6 +160,9 @@ def read_audio(path, sample_rate: int = 16000) -> tuple[np.ndarray, float]:
     if not chunks or not any(len(ch) for ch in chunks):
         raise BadInputError(path, "audio track holds no samples")
     samples = np.concatenate(chunks).astype(np.float32)
+    bad = int((~np.isfinite(samples)).sum())
+    if bad:
+        raise BadInputError(path, f"audio holds {bad} NaN or infinite samples (of {len(samples)}): not a valid recording")
     if declared:  # AAC decoders emit the encoder's padding past the stream's declared end: drop it
         samples = samples[:int(round(declared * sample_rate))]
     return samples, float(start or 0.0)

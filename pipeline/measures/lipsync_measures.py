@@ -84,6 +84,36 @@ def best_lag(a: np.ndarray, b: np.ndarray, max_lag: int = 5) -> int:
     return best
 
 
+def audio_envelope(samples: np.ndarray, fps: float, n_frames: int, sample_rate: int = 16000) -> np.ndarray:
+    """(n_frames,) log RMS (dB) of the 300 Hz–3 kHz speech band over each video frame's period.
+
+    Frame k covers [k, k + 1) / fps seconds; a frame past the audio's end is NaN."""
+    from scipy.signal import butter, sosfiltfilt
+    x = np.asarray(samples, np.float64)
+    if len(x) > 30:
+        x = sosfiltfilt(butter(4, [300, 3000], btype="band", fs=sample_rate, output="sos"), x)
+    out = np.full(n_frames, np.nan)
+    for k in range(n_frames):
+        a, b = int(k * sample_rate / fps), int((k + 1) * sample_rate / fps)
+        if b <= len(x):
+            out[k] = 10 * np.log10(np.mean(x[a:b] ** 2) + 1e-10)
+    return out
+
+
+def source_offset(samples: np.ndarray, opening: np.ndarray, ok: np.ndarray, fps: float, max_lag: int = 5) -> dict:
+    """Audio–video offset of a source clip itself, no model: the lag (frames, + = the mouth opens
+    after the sound) in ±``max_lag`` at which the speech-band envelope best correlates with the tracked
+    inner-lip opening, and that correlation. A clip whose own offset is far from 0 is out of sync at
+    the source, so a model's lag on it is not the model's error."""
+    env = audio_envelope(samples, fps, len(opening))
+    op = np.where(ok, opening, np.nan)
+    lag = best_lag(op, env, max_lag)
+    x, y = op[max(lag, 0):len(op) + min(lag, 0)], env[max(-lag, 0):len(env) + min(-lag, 0)]
+    both = np.isfinite(x) & np.isfinite(y)
+    corr = float(np.corrcoef(x[both], y[both])[0, 1]) if both.sum() > 5 else float("nan")
+    return dict(offset_frames=int(lag), envelope_corr=corr)
+
+
 def compare(out_gray: np.ndarray, out_lm: np.ndarray, out_ok: np.ndarray,
             ref_gray: np.ndarray, ref_lm: np.ndarray, ref_ok: np.ndarray) -> dict:
     """All measures of an output video against its original (same length, same timing)."""

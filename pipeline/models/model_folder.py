@@ -92,6 +92,7 @@ def save_puppet(folder, puppet: dict) -> None:
     np.savez(folder / "arrays.npz", **{k: np.asarray(v) for k, v in puppet.items() if k not in ("config", "gauss")})
 
 
+PUPPET_OPTIONAL = ("vocal_projection_mean", "vocal_projection")     # a PCA of wide voice features (whisper)
 PUPPET_ARRAYS = ("startprob", "transmat", "face_means", "face_covars", "vocal_means", "vocal_covars", "vocal_mean",
                  "vocal_std", "face_pca_mean", "face_pca_components", "lip_index", "pca_mean", "pca_components")
 
@@ -106,7 +107,7 @@ def load_puppet(folder, expect_fingerprint: str | None = None) -> dict:
         missing = [k for k in PUPPET_ARRAYS if k not in z.files]
         if missing:
             raise ModelError(f"{folder}: arrays.npz lacks {', '.join(missing)}")
-        puppet = {k: z[k] for k in PUPPET_ARRAYS}
+        puppet = {k: z[k] for k in PUPPET_ARRAYS + PUPPET_OPTIONAL if k in z.files}
     puppet["config"] = config
     basis = dict(mean=puppet["pca_mean"], components=puppet["pca_components"])
     if fingerprint(basis) != config.get("pca_fingerprint"):

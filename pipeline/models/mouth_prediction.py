@@ -101,7 +101,7 @@ def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: flo
     dev = pick_device(device)
     model, config, arrays = load_model(model_dir, dev)
     features = config.get("features", "mfcc")
-    x = front_ends.frame_features(samples, features)
+    x = front_ends.frame_features(samples, features, config.get("encoder"))
     front_ends.check_width(x, features, len(arrays["feature_mean"]), str(model_dir))
     if config.get("feature_norm", "corpus") == "utterance":
         x = front_ends.utterance_norm(x, features)

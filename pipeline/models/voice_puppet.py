@@ -172,9 +172,17 @@ def decode_voice(samples: np.ndarray, puppet: dict, source="audio") -> tuple[np.
     if rms <= 10 ** (SILENCE_DBFS / 20):
         raise BadInputError(source, f"the audio is silent (RMS below {SILENCE_DBFS:.0f} dBFS): nothing to lip-sync")
     n = int(np.floor(len(samples) / 16000 * cfg["rate"] + 0.5))
-    a = vocal_features.vocal_features(samples, cfg["features"], cfg["rate"], n, source)
+    a = project_voice(vocal_features.vocal_features(samples, cfg["features"], cfg["rate"], n, source,
+                                                                cfg.get("encoder")), puppet)
     a = (a - puppet["vocal_mean"]) / puppet["vocal_std"]
     return a, gaussian_loglik(a, puppet["vocal_means"], puppet["vocal_covars"])
+
+
+def project_voice(a: np.ndarray, puppet: dict) -> np.ndarray:
+    """(n, F) voice features → (n, A) on the model's voice PCA when it has one (wide encoder states), else as is."""
+    if "vocal_projection" not in puppet:
+        return a
+    return (a - puppet["vocal_projection_mean"]) @ puppet["vocal_projection"].T
 
 
 def state_weights(loglik: np.ndarray, puppet: dict, how: str) -> np.ndarray:

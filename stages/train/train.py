@@ -34,11 +34,12 @@ log = logging.getLogger("lipsynth.train")
 MODELS = ("lstm",)
 
 
-def load_sequences(ingest_path: str, pca_path: str, features: str = "mfcc", phonetic_path: str | None = None):
+def load_sequences(ingest_path: str, pca_path: str, features: str = "mfcc", phonetic_path: str | None = None,
+                   whisper_path: str | None = None):
     """Per-video (x (m, D), y (m, 20), ok (m,)) at 100 Hz, plus frame-rate truth for evaluation.
 
-    x holds the ``features`` front end (``pipeline.audio.front_ends``): ingest's MFCC and/or the
-    ``phonetic`` stage's phone indicators (same time axis)."""
+    x holds the ``features`` front end (``pipeline.audio.front_ends``): ingest's MFCC, the
+    ``phonetic`` stage's phone indicators and/or the ``whisper`` stage's encoder states (same time axis)."""
     src, pca = open_group(ingest_path), open_group(pca_path)
     mfcc = np.asarray(src["mfcc"][...], np.float32) if front_ends.uses_mfcc(features) else None
     phones = None
@@ -46,6 +47,11 @@ def load_sequences(ingest_path: str, pca_path: str, features: str = "mfcc", phon
         if phonetic_path is None:
             raise ParameterError(f"train.features={features!r} needs the phonetic store (run the phonetic stage)")
         phones = np.asarray(open_group(phonetic_path)["phones"][...], np.float32)
+    states = None
+    if front_ends.uses_whisper(features):
+        if whisper_path is None:
+            raise ParameterError(f"train.features={features!r} needs the whisper store (run the whisper stage)")
+        states = open_group(whisper_path)["states"]
     c100 = np.asarray(pca["coeffs_100hz"][...], np.float32)
     v100 = np.asarray(pca["valid_100hz"][...])
     coeffs = np.asarray(pca["coeffs"][...], np.float32)
@@ -57,7 +63,8 @@ def load_sequences(ingest_path: str, pca_path: str, features: str = "mfcc", phon
             continue
         m0, m, f0, n = v["first_mfcc"], v["n_mfcc"], v["first_frame"], v["n_frames"]
         x = front_ends.combine(features, None if mfcc is None else mfcc[m0:m0 + m],
-                               None if phones is None else phones[m0:m0 + m])
+                               None if phones is None else phones[m0:m0 + m],
+                               None if states is None else np.asarray(states[m0:m0 + m], np.float32))
         out[v["split"]].append(dict(name=v["name"], fps=v["fps"], x=x, y=c100[m0:m0 + m], audio=(v["first_sample"], v["n_samples"]),
                                     ok=v100[m0:m0 + m], frame_y=coeffs[f0:f0 + n], frame_ok=valid[f0:f0 + n],
                                     frame_time=ftime[f0:f0 + n]))
@@ -140,7 +147,7 @@ def score(preds100: list, data: dict, basis: dict, iod_px: float) -> dict:
 
 
 def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | None = None,
-        frontalize_path: str | None = None, phonetic_path: str | None = None) -> dict:
+        frontalize_path: str | None = None, phonetic_path: str | None = None, whisper_path: str | None = None) -> dict:
     """Train ``train.model``; the model folder also gets the speaker (identity, 3D model, candidate
     bank, ``pipeline/models/speaker_bank``) when the landmarks and frontalize stores are given."""
     from pipeline.models.delayed_lstm import pick_device
@@ -148,7 +155,7 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     p = params.train
     if p.model not in MODELS:
         raise ParameterError(f"train.model={p.model!r}: choose one of {', '.join(MODELS)}")
-    data, basis, pattrs = load_sequences(ingest_path, pca_path, p.features, phonetic_path)
+    data, basis, pattrs = load_sequences(ingest_path, pca_path, p.features, phonetic_path, whisper_path)
     device = pick_device(p.device)
     mean, std = feature_normalisation(data, p.feature_norm, p.features)
     if p.vtlp_warps or p.pitch_shifts:
@@ -193,7 +200,8 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     with atomic_output(p.out) as tmp:
         save_model(tmp, model, dict(model=p.model, delay=p.delay, hidden=p.hidden, layers=p.layers,
                                     n_features=int(mean.shape[0]), n_components=k, feature_rate=100.0,
-                                    feature_norm=p.feature_norm, features=p.features, params=as_dict(p)),
+                                    feature_norm=p.feature_norm, features=p.features, params=as_dict(p),
+                                    encoder=encoder_settings(p.features, whisper_path)),
                    mean, std, basis, pattrs)
         if landmarks_path and frontalize_path:
             metrics["speaker"] = export_speaker(tmp, ingest_path, landmarks_path, frontalize_path,
@@ -201,6 +209,14 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     write_outputs(metrics, curves, p)
     write_timing("train", dict(clock, total_s=time.perf_counter() - clock_start))     # untracked: outputs stay deterministic
     return metrics
+
+
+def encoder_settings(features: str, whisper_path: str | None) -> dict | None:
+    """The whisper windowing the training features were made with (prediction repeats it)."""
+    if not front_ends.uses_whisper(features):
+        return None
+    a = open_group(whisper_path).attrs
+    return dict(window_s=float(a["window_s"]), overlap_s=float(a["overlap_s"]))
 
 
 def write_outputs(metrics: dict, curves: dict, p: Train) -> None:
@@ -222,7 +238,7 @@ def write_outputs(metrics: dict, curves: dict, p: Train) -> None:
 
 def main(argv=None) -> int:
     return stage_main("lipsynth train", __doc__, lambda p: run(p, p.ingest.out, p.pca.out, p.landmarks.out, p.frontalize.out,
-                                                             p.phonetic.out),
+                                                             p.phonetic.out, p.whisper.out),
                       argv)
 
 

@@ -40,7 +40,7 @@ def resample(values: np.ndarray, ok: np.ndarray, frame_time: np.ndarray, n_out: 
 
 
 def load_videos(ingest_path: str, landmarks_path: str, frontalize_path: str, pca_path: str,
-                rate: float, features: str) -> tuple[list[dict], dict]:
+                rate: float, features: str, encoder: dict | None = None) -> tuple[list[dict], dict]:
     """Per video (not excluded): name, split, fps, points (n, P, 2) and ok (n,) at the model rate,
     voice (n, A), and the store's frame-rate truth for evaluation: frame_coeffs (T, k), frame_ok (T,),
     samples (S,) float32. Also the mouth PCA basis and attributes of the pca store."""
@@ -59,7 +59,7 @@ def load_videos(ingest_path: str, landmarks_path: str, frontalize_path: str, pca
         n_model = int(np.floor(min(v["n_samples"] / 16000.0, ftime[f0 + n - 1] + 0.5 / v["fps"]) * rate + 0.5))
         points, ok = resample(pts, ok_all[f0:f0 + n], ftime[f0:f0 + n], n_model, rate)
         out.append(dict(name=v["name"], split=v["split"], fps=float(v["fps"]), points=points, ok=ok,
-                        voice=vocal_features(samples, features, rate, n_model, v["name"]),
+                        voice=vocal_features(samples, features, rate, n_model, v["name"], encoder),
                         frame_coeffs=coeffs[f0:f0 + n], frame_ok=cvalid[f0:f0 + n], samples=samples))
     basis = {k: np.asarray(pca[k][...], np.float64) for k in ("mean", "components")}
     return out, dict(basis=basis, attrs=dict(pca.attrs))

@@ -33,7 +33,7 @@ import numpy as np
 
 from pipeline.measures import mouth_metrics
 from pipeline.models import voice_puppet
-from pipeline.errors import LipsynthError
+from pipeline.errors import LipsynthError, ParameterError
 from pipeline.models.model_folder import save_puppet
 from pipeline.params import Params, as_dict
 from pipeline.io.runner import stage_main, write_timing
@@ -125,7 +125,9 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
         with_speaker: bool = True) -> dict:
     b = params.brand
     clock = {"start": time.perf_counter()}
-    videos, pc = load_videos(ingest_path, landmarks_path, frontalize_path, pca_path, b.rate, b.features)
+    encoder = (dict(window_s=params.whisper.window_seconds, overlap_s=params.whisper.overlap_seconds)
+               if b.features == "whisper" else None)
+    videos, pc = load_videos(ingest_path, landmarks_path, frontalize_path, pca_path, b.rate, b.features, encoder)
     basis, attrs = pc["basis"], pc["attrs"]
     train = [v for v in videos if v["split"] == "train"]
     val = [v for v in videos if v["split"] == "val"]
@@ -133,6 +135,12 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
         raise LipsynthError(f"{pca_path}: Voice Puppetry needs training and validation videos "
                             f"({len(train)} and {len(val)})")
     clock["features_s"] = time.perf_counter() - clock["start"]
+    projection = voice_pca(train, b.voice_dims) if b.features == "whisper" else None
+    if projection is not None:
+        for v in videos:
+            v["voice"] = voice_puppet.project_voice(v["voice"], projection)
+        log.info("voice: PCA of the %d-D encoder states to %d dims (%.1f%% of their variance)",
+                 projection["vocal_projection"].shape[1], b.voice_dims, 100 * projection["explained"])
     fpca = face_pca(train, b.face_dims)
     obs = [observations(v, fpca, b.rate) for v in videos]
     by_name = {v["name"]: o for v, o in zip(videos, obs)}
@@ -149,7 +157,7 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
     log.info("Voice Puppetry: %d training frames in %d segments (%d videos), face %d-D (%.1f%% of the variance "
              "of %d points) + velocity, voice %d-D (%s), %d validation videos", len(X), len(lengths), len(train),
              b.face_dims, 100 * fpca["explained"].sum(), len(FACE_POINTS), V.shape[1], b.features, len(val))
-    config = dict(model="brand", rate=b.rate, features=b.features, decode=b.decode, face_dims=b.face_dims,
+    config = dict(model="brand", rate=b.rate, features=b.features, encoder=encoder, decode=b.decode, face_dims=b.face_dims,
                   face_points=FACE_POINTS, reg=b.reg, pca_fingerprint=attrs["fingerprint"],
                   lip_points=attrs["lip_points"], iod_px=attrs["iod_px"], params=as_dict(b), format=1)
     metrics = dict(model="brand", rate=b.rate, features=b.features, face_dims=b.face_dims,
@@ -166,6 +174,9 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
         puppet = make_puppet(hmm, Z, Vn, lengths, center, scale, fpca, basis, cfg,
                              b.prior_weight if prior == "entropic" else 0.0)
         puppet.update(vocal_mean=vmean, vocal_std=vstd)
+        if projection is not None:
+            puppet.update(vocal_projection_mean=projection["vocal_projection_mean"],
+                          vocal_projection=projection["vocal_projection"])
         curves[prior], puppets[prior] = history, puppet
         tr_obs = [by_name[v["name"]] for v in train]
         va_obs = [by_name[v["name"]] for v in val]
@@ -202,6 +213,17 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
     clock["total_s"] = time.perf_counter() - clock.pop("start")
     write_timing("train_brand", dict(clock, training_frames=len(X)))
     return metrics
+
+
+def voice_pca(train: list[dict], dims: int) -> dict:
+    """PCA of the training videos' voice frames: vocal_projection_mean (F,), vocal_projection (dims, F),
+    explained (share of the variance kept)."""
+    if dims < 1:
+        raise ParameterError(f"brand.voice_dims={dims}: must be at least 1")
+    x = np.concatenate([v["voice"] for v in train])
+    mean = x.mean(0)
+    _, s, vt = np.linalg.svd(x - mean, full_matrices=False)
+    return dict(vocal_projection_mean=mean, vocal_projection=vt[:dims], explained=float((s[:dims] ** 2).sum() / (s ** 2).sum()))
 
 
 def write_outputs(metrics: dict, curves: dict, b) -> None:
