@@ -4,7 +4,7 @@
 
 ``configs/<name>.yaml`` holds overrides of params.yaml (the corpus, its output folders). This
 merges them into ``runs/<name>/params.yaml`` (validated like any params file), runs the stages
-ingest → landmarks → frontalize → pca → phonetic → train → delay_sweep with ``--params`` that file, then
+ingest → landmarks → frontalize → pca → phonetic → whisper → train → delay_sweep with ``--params`` that file, then
 ``bench/synthesis_quality.py`` on ``--clips`` validation clips (candidates from other videos
 only, then with the target's own frames), and copies into ``reports/<name>/``:
 train_metrics.json, train_loss.csv, delay_sweep.csv, synthesis_quality.json,
@@ -30,7 +30,7 @@ from pipeline.params import as_dict, parse  # noqa: E402
 
 STAGES = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
           ("frontalize", "stages.frontalize.frontalize"), ("pca", "stages.pca.pca"),
-          ("phonetic", "stages.phonetic.phonetic"), ("train", "stages.train.train"),
+          ("phonetic", "stages.phonetic.phonetic"), ("whisper", "stages.whisper.whisper"), ("train", "stages.train.train"),
           ("brand", "stages.train_brand.train_brand"), ("delay_sweep", "stages.train.sweep")]
 PAGE = [("evaluate", "stages.evaluate.evaluate"), ("report", "stages.report.report")]   # after the benches
 

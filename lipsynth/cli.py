@@ -14,6 +14,8 @@ COMMANDS = {
     "landmarks": ("stages.landmarks.landmarks", "dlib 68-point landmarks for every frame → store/landmarks.zarr"),
     "frontalize": ("stages.frontalize.frontalize", "3D model, pose, frontal textures → store/frontalize.zarr"),
     "pca": ("stages.pca.pca", "18 frontal lip points → 20 PCA coefficients per frame and at 100 Hz → store/pca.zarr"),
+    "phonetic": ("stages.phonetic.phonetic", "pocketsphinx phone indicators per 10 ms → store/phonetic.zarr"),
+    "whisper": ("stages.whisper.whisper", "Whisper tiny.en encoder states per 10 ms (pretrained on many speakers) → store/whisper.zarr"),
     "train": ("stages.train.train", "train the audio → mouth-shape model (train.model) → models/<model>"),
     "train-brand": ("stages.train_brand.train_brand", "Voice Puppetry (paper 002): entropic facial HMM remapped onto the voice → models/brand"),
     "train-karras": ("stages.train_karras.train_karras", "Karras et al. (paper 001): autocorrelation conv net with learned emotions → models/karras"),

@@ -144,10 +144,10 @@ class Train:
     patience: int | None = None
     min_delta: float = 0.0
     baselines: bool = True
-    feature_norm: str = "utterance"
-    features: str = "mfcc"
-    vtlp_warps: list = field(default_factory=lambda: [0.85, 0.92, 1.08, 1.15])
-    pitch_shifts: list = field(default_factory=lambda: [-4, -2, 2, 4])
+    feature_norm: str = "corpus"
+    features: str = "whisper"
+    vtlp_warps: list = field(default_factory=list)
+    pitch_shifts: list = field(default_factory=list)
     seed: int = 0
     device: str = "auto"
     bank_frames: int = 3000

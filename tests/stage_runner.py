@@ -9,7 +9,7 @@ def make_params(tmp_path, videos, cluster=None, **sections):
     """The project's params with ``data.videos`` = videos and the preprocessing outputs in tmp_path."""
     params = load_params(ROOT / "params.yaml")
     params.data.videos = videos
-    for stage in ("ingest", "landmarks", "frontalize"):
+    for stage in ("ingest", "landmarks", "frontalize", "whisper"):
         getattr(params, stage).out = str(tmp_path / f"{stage}.zarr")
     for k, v in (cluster or {}).items():
         setattr(params.cluster, k, v)

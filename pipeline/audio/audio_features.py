@@ -163,3 +163,28 @@ def pitch_shifted_mfcc(samples: np.ndarray, semitones: float) -> np.ndarray:
     back = np.stack([np.interp(t, t_new, static[:, j]) for j in range(static.shape[1])], axis=1)
     return np.concatenate([back, delta(back)], axis=1).astype(np.float32)
 
+
+
+def silent_frames(samples: np.ndarray, n_frames: int | None = None, floor_dbfs: float = -55.0,
+                  below_peak_db: float = 35.0, min_ms: float = 150.0) -> np.ndarray:
+    """(T,) bool: 10-ms frames (frame t centred at t / 100 s, T = 1 + S // 160 unless given) inside a
+    stretch of at least ``min_ms`` whose 25-ms RMS is below max(``floor_dbfs``, loudest − ``below_peak_db``) dBFS.
+
+    A pause, digital silence or faint room noise: where no front end has speech to read, so a
+    frame-feature model's mouth rests there (``mouth_prediction``)."""
+    x = np.asarray(samples, np.float64)
+    n = 1 + len(x) // HOP if n_frames is None else int(n_frames)
+    db = 10 * np.log10(np.mean(frame_signal(x) ** 2, axis=1) + 1e-12)
+    db = np.pad(db, (0, max(0, n - len(db))), constant_values=-120.0)[:n]
+    quiet = db < max(floor_dbfs, float(db.max()) - below_peak_db)
+    run = max(1, int(round(min_ms / 10)))
+    out = np.zeros(n, bool)
+    start = None
+    for t, q in enumerate(np.append(quiet, False)):
+        if q and start is None:
+            start = t
+        elif not q and start is not None:
+            if t - start >= run:
+                out[start:t] = True
+            start = None
+    return out

@@ -39,7 +39,10 @@ class ModelError(LipsynthError):
     """A model folder is missing, incomplete, or does not match the data it is used with."""
 
 
-def save_model(folder, model, config: dict, feature_mean, feature_std, basis: dict, pca_attrs: dict) -> None:
+def save_model(folder, model, config: dict, feature_mean, feature_std, basis: dict, pca_attrs: dict,
+               rest_coeffs=None) -> None:
+    """An LSTM model folder; ``rest_coeffs`` (k,): the PCA coefficients of the mouth in the training
+    audio's silent stretches (prediction rests the mouth there)."""
     import torch
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -47,8 +50,9 @@ def save_model(folder, model, config: dict, feature_mean, feature_std, basis: di
     config = dict(config, pca_fingerprint=fingerprint(basis), lip_points=pca_attrs["lip_points"],
                   iod_px=pca_attrs["iod_px"], format=1)
     (folder / "config.json").write_text(json.dumps(config, indent=2))
+    extra = {} if rest_coeffs is None else {"rest_coeffs": np.asarray(rest_coeffs, np.float32)}
     np.savez(folder / "arrays.npz", feature_mean=feature_mean, feature_std=feature_std,
-             pca_mean=basis["mean"], pca_components=basis["components"])
+             pca_mean=basis["mean"], pca_components=basis["components"], **extra)
 
 
 def read_config(folder) -> dict:

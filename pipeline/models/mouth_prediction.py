@@ -49,6 +49,18 @@ def to_frames(c100: np.ndarray, frame_time: np.ndarray, rate: float = 100.0) -> 
     return np.stack([np.interp(frame_time, t, c100[:, j]) for j in range(c100.shape[1])], axis=1)
 
 
+def rest_in_silence(c100: np.ndarray, samples: np.ndarray, rest: np.ndarray, ramp: int = 5) -> np.ndarray:
+    """(m, k) 100-Hz coefficients with the silent stretches of ``samples`` (``audio_features.silent_frames``)
+    moved to the model's rest mouth, cross-faded over ``ramp`` frames at each edge. A front end reads
+    nothing in silence — digital silence or faint noise unlike the training pauses must not open the mouth."""
+    quiet = audio_features.silent_frames(samples, len(c100)).astype(np.float64)
+    if not quiet.any():
+        return c100
+    kernel = np.ones(2 * ramp + 1) / (2 * ramp + 1)
+    g = (quiet * np.convolve(quiet, kernel, mode="same"))[:, None]      # ramps inside the quiet stretch only
+    return ((1 - g) * c100 + g * rest[None]).astype(np.float32)
+
+
 def check_model_folder(model_dir) -> dict:
     """Check a model folder of any family, ensembles included (raises ModelError naming what is
     wrong); its config."""
@@ -108,6 +120,8 @@ def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: flo
     x = (x - arrays["feature_mean"]) / arrays["feature_std"]
     chunk = int(chunk_seconds * 100) if chunk_seconds else None
     c100 = predict_sequence(model, x.astype(np.float32), config["delay"], dev, chunk)
+    if "rest_coeffs" in arrays:
+        c100 = rest_in_silence(c100, samples, arrays["rest_coeffs"])
     n = frame_count(len(samples), fps)
     t = np.arange(n) / fps
     coeffs = to_frames(c100, t).astype(np.float32)

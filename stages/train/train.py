@@ -183,6 +183,7 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
                "step_kept": kept, "train_loss": best["train_loss"], "val_loss": best["val_loss"],
                "val": score(preds, data, basis, pattrs["iod_px"])}
     k = basis["components"].shape[0]
+    rest = rest_shape(data["train"], ingest_path)
     mean_shape = np.concatenate([s["y"][s["ok"]] for s in data["train"]]).mean(0)
     metrics["baseline_mean_shape"] = score([np.tile(mean_shape, (len(s["x"]), 1)) for s in data["val"]],
                                            data, basis, pattrs["iod_px"])
@@ -202,13 +203,31 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
                                     n_features=int(mean.shape[0]), n_components=k, feature_rate=100.0,
                                     feature_norm=p.feature_norm, features=p.features, params=as_dict(p),
                                     encoder=encoder_settings(p.features, whisper_path)),
-                   mean, std, basis, pattrs)
+                   mean, std, basis, pattrs, rest)
         if landmarks_path and frontalize_path:
             metrics["speaker"] = export_speaker(tmp, ingest_path, landmarks_path, frontalize_path,
                                                 p.bank_frames, p.identity_frames)
     write_outputs(metrics, curves, p)
     write_timing("train", dict(clock, total_s=time.perf_counter() - clock_start))     # untracked: outputs stay deterministic
     return metrics
+
+
+def rest_shape(train: list[dict], ingest_path: str) -> np.ndarray | None:
+    """(k,) median PCA coefficients of the training frames in silent stretches of their audio
+    (``audio_features.silent_frames``): the mouth a speaker holds when not speaking, or None."""
+    from pipeline.audio.audio_features import silent_frames
+    audio = open_group(ingest_path)["audio"]
+    rows = []
+    for s in train:
+        s0, n = s["audio"]
+        quiet = silent_frames(np.asarray(audio[s0:s0 + n], np.float32) / 32767.0, len(s["y"])) & s["ok"]
+        rows.append(s["y"][quiet])
+    rows = np.concatenate(rows)
+    if len(rows) < 25:
+        return None
+    log.info("rest mouth: median of %d training frames in silent stretches (%.1f%% of the frames)", len(rows),
+             100 * len(rows) / sum(len(s["y"]) for s in train))
+    return np.median(rows, axis=0)
 
 
 def encoder_settings(features: str, whisper_path: str | None) -> dict | None:
