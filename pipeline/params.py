@@ -133,7 +133,7 @@ class Train:
     out: str = "models/lstm"
     metrics: str = "metrics/train.json"
     plots: str = "plots/train_loss.csv"
-    delay: int = 20
+    delay: int = 0
     hidden: int = 60
     layers: int = 1
     batch_size: int = 100
@@ -163,7 +163,7 @@ class Brand:
     metrics: str = "metrics/train_brand.json"
     plots: str = "plots/train_brand.csv"
     rate: float = 25.0
-    features: str = "mfcc"
+    features: str = "whisper"
     voice_dims: int = 24
     face_dims: int = 12
     states: int = 26

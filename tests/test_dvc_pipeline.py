@@ -125,7 +125,6 @@ def test_frontalized_pose_follows_true_head_motion(project):
 def test_training_learns_and_beats_the_mean_shape(project):
     m = json.loads((project / "metrics" / "train.json").read_text())
     assert m["val"]["mouth_error_px"] <= 0.7 * m["baseline_mean_shape"]["mouth_error_px"], m
-    assert m["val"]["mouth_error_px"] < m["baseline_lstm_delay0"]["mouth_error_px"]
     rows = list(csv.DictReader(open(project / "plots" / "train_loss.csv")))
     lstm = [float(r["train_loss"]) for r in rows if r["model"] == "lstm"]
     assert lstm[-1] < 0.5 * lstm[0]

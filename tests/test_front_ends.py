@@ -145,3 +145,26 @@ def test_pitch_shift_keeps_formants_and_timing():
     mid = slice(60, 110)                                                     # 0.6–1.1 s: voiced in all three
     d = lambda a, b: np.abs(a[mid, 1:13] - b[mid, 1:13]).mean()
     assert d(up, truth) < 0.6 * d(sped, truth), (d(up, truth), d(sped, truth))     # measured 3.5 vs 7.9
+
+
+def test_the_mouth_rests_in_silence_and_nowhere_else():
+    """Digital silence moves the LSTM's mouth to its rest shape (inside the stretch, cross-faded);
+    speech and room-noise pauses keep the model's own prediction."""
+    from pipeline.audio.audio_features import SILENCE_DBFS, silent_frames
+    from pipeline.models.mouth_prediction import rest_in_silence
+    rng = np.random.default_rng(0)
+    sr = 16000
+    t = np.arange(sr) / sr
+    speech = (0.2 * np.sin(2 * np.pi * 180 * t) * (0.6 + 0.4 * np.sin(2 * np.pi * 3 * t))).astype(np.float32)
+    room = 0.001 * rng.standard_normal(sr).astype(np.float32)                # a pause with room noise at −60 dBFS
+    samples = np.concatenate([speech, np.zeros(sr, np.float32), speech, room, speech])
+    n = 1 + len(samples) // 160
+    c100 = rng.standard_normal((n, 20)).astype(np.float32)
+    rest = np.full(20, 5.0, np.float32)
+    out = rest_in_silence(c100, samples, rest)
+    assert np.allclose(out[120:180], rest)                                # the middle of the silent second
+    assert np.array_equal(out[:95], c100[:95]) and np.array_equal(out[205:], c100[205:])   # speech and the noisy pause
+    assert 0 < np.abs(out[103] - c100[103]).max() < np.abs(rest - c100[103]).max()         # a ramp, not a jump
+    pauses = silent_frames(samples, n)                                    # relative to the peak: both pauses
+    assert pauses[120:180].all() and pauses[320:380].all() and not pauses[20:80].any()
+    assert not silent_frames(samples, n, SILENCE_DBFS, None)[320:380].any()

@@ -165,18 +165,23 @@ def pitch_shifted_mfcc(samples: np.ndarray, semitones: float) -> np.ndarray:
 
 
 
-def silent_frames(samples: np.ndarray, n_frames: int | None = None, floor_dbfs: float = -55.0,
-                  below_peak_db: float = 35.0, min_ms: float = 150.0) -> np.ndarray:
-    """(T,) bool: 10-ms frames (frame t centred at t / 100 s, T = 1 + S // 160 unless given) inside a
-    stretch of at least ``min_ms`` whose 25-ms RMS is below max(``floor_dbfs``, loudest − ``below_peak_db``) dBFS.
+SILENCE_DBFS = -65.0     #: below this RMS (after RMS normalisation) audio holds no speech: digital silence, faint hiss
 
-    A pause, digital silence or faint room noise: where no front end has speech to read, so a
-    frame-feature model's mouth rests there (``mouth_prediction``)."""
+
+def silent_frames(samples: np.ndarray, n_frames: int | None = None, floor_dbfs: float = -55.0,
+                  below_peak_db: float | None = 35.0, min_ms: float = 150.0) -> np.ndarray:
+    """(T,) bool: 10-ms frames (frame t centred at t / 100 s, T = 1 + S // 160 unless given) inside a
+    stretch of at least ``min_ms`` whose 25-ms RMS is below max(``floor_dbfs``, loudest − ``below_peak_db``)
+    dBFS (``below_peak_db=None``: below ``floor_dbfs`` alone).
+
+    With the defaults: the pauses of a recording (the training pauses whose mouth is a model's rest
+    shape); with ``floor_dbfs=SILENCE_DBFS, below_peak_db=None``: digital silence or faint noise, where
+    no front end has anything to read (``mouth_prediction.rest_in_silence``)."""
     x = np.asarray(samples, np.float64)
     n = 1 + len(x) // HOP if n_frames is None else int(n_frames)
     db = 10 * np.log10(np.mean(frame_signal(x) ** 2, axis=1) + 1e-12)
     db = np.pad(db, (0, max(0, n - len(db))), constant_values=-120.0)[:n]
-    quiet = db < max(floor_dbfs, float(db.max()) - below_peak_db)
+    quiet = db < (floor_dbfs if below_peak_db is None else max(floor_dbfs, float(db.max()) - below_peak_db))
     run = max(1, int(round(min_ms / 10)))
     out = np.zeros(n, bool)
     start = None

