@@ -71,9 +71,7 @@ def frame_features(samples: np.ndarray, front_end: str, encoder: dict | None = N
     states = None
     if uses_whisper(front_end):
         from pipeline.audio.whisper_encoder import whisper_features
-        e = encoder or {}
-        states = whisper_features(samples, 1 + len(samples) // 160, e.get("window_s", 10.0), e.get("overlap_s", 2.0),
-                                  e.get("threads", 1))
+        states = whisper_features(samples, 1 + len(samples) // 160, **(encoder or {}))
     return combine(front_end, mfcc, phones, states)
 
 

@@ -22,13 +22,14 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.audio import audio_features
+from pipeline.audio.whisper_encoder import STATE_DIM
 from pipeline.errors import BadInputError, ParameterError
 
 KINDS = ("paper", "mfcc", "whisper")
 LPC_ORDER = 12
 RPLP_ORDER = 13
 BANDS_HZ = ((0, 500), (500, 1000), (1000, 2000), (2000, 4000), (4000, 8000))
-DIMS = {"paper": LPC_ORDER + RPLP_ORDER + 3 + len(BANDS_HZ), "mfcc": audio_features.FEATURE_DIM, "whisper": 384}
+DIMS = {"paper": LPC_ORDER + RPLP_ORDER + 3 + len(BANDS_HZ), "mfcc": audio_features.FEATURE_DIM, "whisper": STATE_DIM}
 DITHER = 1e-5
 
 
@@ -82,9 +83,7 @@ def features_100hz(samples: np.ndarray, kind: str, encoder: dict | None = None) 
         raise ParameterError(f"vocal features {kind!r}: choose one of {', '.join(KINDS)}")
     if kind == "whisper":
         from pipeline.audio.whisper_encoder import whisper_features
-        e = encoder or {}
-        return whisper_features(np.asarray(samples, np.float32), None, e.get("window_s", 10.0),
-                                e.get("overlap_s", 2.0)).astype(np.float64)
+        return whisper_features(np.asarray(samples, np.float32), None, **(encoder or {})).astype(np.float64)
     x = _dithered(samples)
     if kind == "mfcc":
         return audio_features.mfcc_features(x.astype(np.float32)).astype(np.float64)
