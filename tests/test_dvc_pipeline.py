@@ -285,7 +285,9 @@ def test_whisper_store_and_a_whisper_model(project, tmp_path):
         assert rows.std(0).mean() > 0.05, v["name"]                 # every video's rows written, and moving
     with edited_params(project, "whisper", "window_seconds", 8.0):
         status = set(json.loads(dvc(project, "status", "--json").strip().splitlines()[-1]))
-    assert {"whisper", "train"} <= status, status
+    # train reads whisper.zarr, so it reruns once whisper has (dvc status flags only stages whose own deps
+    # changed); Voice Puppetry computes its voice features from the audio, so its whisper params flag it now
+    assert {"whisper", "train_brand"} <= status and "train" not in status, status
     assert not {"ingest", "phonetic", "landmarks", "frontalize", "pca", "train_karras"} & status, status
     params = yaml.safe_load((project / "params.yaml").read_text())
     params["train"].update(features="whisper", feature_norm="corpus", vtlp_warps=[], pitch_shifts=[], steps=15,
