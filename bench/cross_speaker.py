@@ -229,11 +229,19 @@ def main() -> None:
                    core_clips=len(real),
                    synthetic_median_corr_lag0=float(np.median([r["corr_lag0"] for r in rows if r["clip"].startswith("synthetic/")]))
                    if not a.no_synthetic else None)
+        res["trained_on_people"] = [Path(f).name for f in cfg.get("params", {}).get("extra_corpora") or []]
         if i < len(a.metrics):
             v = json.loads(Path(a.metrics[i]).read_text())["val"]
             res["in_domain"] = dict(mouth_error_iod_pct=v["mouth_error_iod_pct"], mouth_error_px=v["mouth_error_px"],
                                     median_opening_corr=v["median_opening_corr"])
         results[model] = res
+    seen = {p for r in results.values() for p in r["trained_on_people"]}
+    for r in results.values():                 # people no compared model trained on: a fair transfer headline
+        unseen = [c for c in r["clips"] if not c["clip"].startswith("synthetic/") and c["clip"].split("/")[0] not in seen]
+        r["unseen_people"] = sorted({c["clip"].split("/")[0] for c in unseen})
+        r["unseen"] = dict(n=len(unseen), median_corr_lag0=float(np.median([c["corr_lag0"] for c in unseen])),
+                           median_corr_best=float(np.median([c["corr_best"] for c in unseen])),
+                           within_one_frame=float(np.mean([abs(c["best_lag"]) <= 1 for c in unseen]))) if unseen else None
     cost = front_end_cost()
     first = next(iter(results.values()))
     print("\nsource clips' own audio–video offset (frames, + = mouth after sound; envelope corr): " +
@@ -256,6 +264,13 @@ def main() -> None:
         print(f"| {Path(model).name} | {r['label'].split('(')[1].rstrip(')')} | {d.get('mouth_error_iod_pct', float('nan')):.3f}"
               f" | {d.get('median_opening_corr', float('nan')):.3f} | {r['median_corr_lag0']:+.2f} | {r['median_corr_best']:+.2f}"
               f" | {r['within_one_frame']:.0%} | {r['median_corr_source_lag']:+.2f} | {r['within_one_frame_of_source']:.0%} | {syn} |")
+    if seen:
+        print(f"\npeople no model trained on ({', '.join(first['unseen_people'])}; the base models also saw "
+              f"{', '.join(sorted(seen))}):\n| model | clips | corr lag 0 | corr best lag | within 1 frame |\n|---|---|---|---|---|")
+        for model, r in results.items():
+            u = r["unseen"] or {}
+            print(f"| {Path(model).name} | {u.get('n', 0)} | {u.get('median_corr_lag0', float('nan')):+.2f} | "
+                  f"{u.get('median_corr_best', float('nan')):+.2f} | {u.get('within_one_frame', float('nan')):.0%} |")
     print("\nfront-end cost (ms of one core per s of audio, median of 5): " +
           ", ".join(f"{k} {v:.1f}" for k, v in cost.items()))
     out = Path(a.out)

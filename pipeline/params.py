@@ -49,11 +49,21 @@ class Data:
 
 
 @dataclass
+class ClusterSecurity:
+    """TLS for ``cluster.address = tls://…`` (``distributed.security.Security``): PEM files."""
+    tls_ca_file: str | None = None         # the CA that signed the scheduler's and workers' certificates
+    tls_client_cert: str | None = None     # this client's certificate (may hold the key too)
+    tls_client_key: str | None = None      # its private key (null: inside tls_client_cert)
+    require_encryption: bool = False       # refuse a tcp:// address
+
+
+@dataclass
 class Cluster:
     address: str | None = None
     n_workers: int | None = None
     memory_limit: str | int | float = "auto"
     connect_timeout: float = 30.0
+    security: ClusterSecurity = field(default_factory=ClusterSecurity)
 
 
 @dataclass
@@ -148,6 +158,8 @@ class Train:
     features: str = "whisper"
     vtlp_warps: list = field(default_factory=list)
     pitch_shifts: list = field(default_factory=list)
+    extra_corpora: list = field(default_factory=list)
+    extra_repeat: int = 1
     seed: int = 0
     device: str = "auto"
     bank_frames: int = 3000
@@ -306,6 +318,7 @@ class Report:
     out: str = "reports/synthetic_speaker"
     title: str = "lipsynth — synthetic speaker"
     paper_delay_ms: float = 200.0
+    benches: str | None = None
 
 
 @dataclass
@@ -363,10 +376,16 @@ def _type_name(kind) -> str:
 
 
 def check(section, name: str, where: str = "params") -> None:
-    """Validate one section object (types and choices); raise ParameterError naming the key."""
+    """Validate one section object (types and choices); raise ParameterError naming the key.
+    A key whose type is itself a section (``cluster.security``) is checked the same way."""
     hints = typing.get_type_hints(type(section))
     for f in dataclasses.fields(section):
         value = getattr(section, f.name)
+        if dataclasses.is_dataclass(hints[f.name]):
+            if not isinstance(value, hints[f.name]):
+                raise ParameterError(f"{where}: {name}.{f.name}={value!r}: expected a mapping of keys")
+            check(value, f"{name}.{f.name}", where)
+            continue
         if not _type_ok(value, hints[f.name]):
             raise ParameterError(f"{where}: {name}.{f.name}={value!r}: expected {_type_name(hints[f.name])}")
         choices = getattr(type(section), "CHOICES", {}).get(f.name)
@@ -386,16 +405,27 @@ def parse(tree: dict, where: str = "params") -> Params:
         values = tree.get(name) or {}
         if not isinstance(values, dict):
             raise ParameterError(f"{where}: section '{name}' must be a mapping of keys, got {values!r}")
-        known = {f.name for f in dataclasses.fields(make())}
-        bad = sorted(set(values) - known)
-        if bad:
-            raise ParameterError(f"{where}: unknown key {name}.{bad[0]} (known keys: {', '.join(sorted(known))})")
-        section = make()
-        for k, v in values.items():
-            setattr(section, k, v)
+        section = _fill(make(), values, name, where)
         check(section, name, where)
         sections[name] = section
     return Params(**sections)
+
+
+def _fill(section, values: dict, name: str, where: str):
+    """``section`` with the keys of ``values`` set; a nested section (``cluster.security``) is
+    filled from its own mapping. Unknown keys stop with one line naming them."""
+    known = {f.name for f in dataclasses.fields(section)}
+    bad = sorted(set(values) - known)
+    if bad:
+        raise ParameterError(f"{where}: unknown key {name}.{bad[0]} (known keys: {', '.join(sorted(known))})")
+    for k, v in values.items():
+        current = getattr(section, k)
+        if dataclasses.is_dataclass(current) and isinstance(v, dict):
+            v = _fill(type(current)(), v, f"{name}.{k}", where)
+        elif dataclasses.is_dataclass(current) and v is None:
+            v = type(current)()                # `security:` left empty = the defaults
+        setattr(section, k, v)
+    return section
 
 
 def load_params(path: str | os.PathLike | None = None) -> Params:

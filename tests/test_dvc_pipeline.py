@@ -306,6 +306,29 @@ def test_whisper_store_and_a_whisper_model(project, tmp_path):
 
 
 @pytest.mark.slow
+def test_a_store_read_as_an_extra_corpus_keeps_each_videos_motion(project):
+    """The demo store read back as another person's corpus: each video's targets differ from the pca
+    stage's own coefficients by one constant (its resting shape, replaced by the corpus mean), and the
+    inputs are the whisper states of the same frames."""
+    from stages.train import extra_corpora
+    from stages.train.train import load_sequences
+    store = project / "store"
+    data, basis, attrs = load_sequences(str(store / "ingest.zarr"), str(store / "pca.zarr"), "whisper",
+                                        whisper_path=str(store / "whisper.zarr"))
+    own = {s["name"]: s for s in data["train"] + data["val"]}
+    extra = extra_corpora.load([str(store)], "whisper", basis, attrs["iod_px"], repeat=2)
+    assert len(extra) == 2 * len(own) and all(s["extra"] for s in extra)
+    for s in extra[::2]:
+        o = own[s["name"].split("/", 1)[1]]
+        np.testing.assert_array_equal(s["x"], o["x"])
+        both = s["ok"] & o["ok"]
+        assert both.mean() > 0.8, s["name"]
+        diff = (o["y"] - s["y"])[both]
+        assert np.abs(diff - diff.mean(0)).max() < 1e-3, s["name"]       # one offset per video: motion intact
+        assert np.abs(diff.mean(0)).max() > 1e-4 or len(own) == 1          # the resting shape did move
+
+
+@pytest.mark.slow
 def test_brand_param_reruns_only_train_brand(project):
     with edited_params(project, "brand", "decode", "posterior"):
         status = json.loads(dvc(project, "status", "--json").strip().splitlines()[-1])

@@ -107,6 +107,33 @@ def test_page_has_tables_one_svg_per_plot_relative_videos_and_escapes_text():
     assert "not measured" in page and "paper: 200 ms" in page
 
 
+def test_other_voices_and_the_speak_path_are_shown_per_person_and_path(tmp_path):
+    group = lambda lag0, best: {"n": 2, "median_corr_lag0": lag0, "median_corr_best": best, "within_one_frame": 0.5,
+                                "median_source_offset": -2.0, "median_corr_source_lag": best - 0.01}
+    cross = {"models": {"a": {"label": "lstm (mfcc, corpus)", "groups": {"obama": group(0.1, 0.3), "lieu": group(0.2, 0.4)},
+                              "core_clips": 4, "median_corr_lag0": 0.15, "median_corr_best": 0.35, "within_one_frame": 0.25,
+                              "median_corr_source_lag": 0.3, "in_domain": {"mouth_error_iod_pct": 1.15}},
+                        "b": {"label": "base (whisper, corpus)", "groups": {"obama": group(0.5, 0.7)}, "core_clips": 4,
+                              "median_corr_lag0": 0.5, "median_corr_best": 0.7, "within_one_frame": 0.75,
+                              "median_corr_source_lag": 0.6}}}
+    quality = {"clips": 3, "median": {"mouth_error_px": 0.8, "error_ratio": 0.61, "opening_corr": 0.906,
+                                      "within_1_frame": 1.0, "sharpness_ratio": 0.75, "flicker_ratio": 0.93}}
+    (tmp_path / "cross_speaker.json").write_text(json.dumps(cross))
+    (tmp_path / "synthesis_quality_speak.json").write_text(json.dumps(quality))
+    ctx = dict(fake_ctx(1), **report.benches(str(tmp_path), Path(".")))
+    page = report.build_html(ctx)
+    assert page.count("<svg") == 4                                       # + the per-person plot
+    rows = re.findall(r"<tr>(.*?)</tr>", page.split("Other voices")[1].split("</table>")[0])
+    assert len(rows) == 1 + 3 + 2                                       # header; 2 people + all, 1 person + all
+    assert "<td>lieu</td><td>2</td><td>0.20</td><td>0.40</td><td>50%</td><td>-2</td><td>0.39</td>" in rows[2]
+    assert "in-domain 1.150 % IOD" in rows[3]
+    speak = page.split("<code>lipsynth speak</code> path")[1].split("</table>")[0]
+    assert speak.count("<tr>") == 1 + 1 and "<td>lipsynth speak (clip files)</td><td>3</td><td>0.800</td><td>0.61</td>" \
+        "<td>0.906</td><td>100%</td>" in speak                       # the DVC-path files are absent: no rows
+    assert report.benches(None, Path(".")) == {}
+    assert "Other voices" not in report.build_html(fake_ctx(1))
+
+
 def test_page_is_deterministic_apart_from_the_date_line():
     a, b = fake_ctx(2), fake_ctx(2)
     b["date"] = "2030-12-31 23:59 UTC"

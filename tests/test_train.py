@@ -13,7 +13,8 @@ from pipeline.models.model_folder import ModelError, load_model, save_model
 from pipeline.models.mouth_pca import fingerprint, project, reconstruct
 from pipeline.models.mouth_prediction import frame_count, load_audio, predict_mouth
 from pipeline.params import Train
-from stages.pca.pca import fit_pca, resample_to_100hz
+from pipeline.models.mouth_pca import resample_to_100hz
+from stages.pca.pca import fit_pca
 from stages.train import lstm
 from pipeline.measures.mouth_metrics import lagged_correlation
 

@@ -35,3 +35,27 @@ def fingerprint(basis: dict) -> str:
     for k in ("mean", "components"):
         h.update(np.ascontiguousarray(basis[k], np.float32).tobytes())
     return h.hexdigest()[:16]
+
+
+def resample_to_100hz(coeffs: np.ndarray, valid: np.ndarray, frame_time: np.ndarray, n_out: int,
+                      rate: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
+    """Linear interpolation of per-frame coefficients onto t = i / rate, i < n_out.
+
+    Parameters
+    ----------
+    coeffs : (T, k); valid : (T,) bool; frame_time : (T,) seconds from the video start.
+
+    Returns
+    -------
+    (n_out, k) float32 and (n_out,) bool — valid where both bracketing frames are valid
+    (times past the last frame hold the last frame, valid if it is).
+    """
+    t = np.arange(n_out) / rate
+    hi = np.clip(np.searchsorted(frame_time, t, side="right"), 1, len(frame_time) - 1)
+    lo = hi - 1
+    span = np.maximum(frame_time[hi] - frame_time[lo], 1e-9)
+    w = np.clip((t - frame_time[lo]) / span, 0.0, 1.0)[:, None]
+    filled = np.where(valid[:, None], coeffs, 0.0)
+    out = (1 - w) * filled[lo] + w * filled[hi]
+    ok = (valid[lo] | (w[:, 0] == 1.0)) & (valid[hi] | (w[:, 0] == 0.0))
+    return out.astype(np.float32), ok

@@ -25,7 +25,7 @@ import numpy as np
 
 from pipeline.errors import LipsynthError
 from pipeline.face.dlib_face import IOD_MM, LIP_POINTS
-from pipeline.models.mouth_pca import fingerprint, lip_vectors, project
+from pipeline.models.mouth_pca import fingerprint, lip_vectors, project, resample_to_100hz
 from pipeline.params import Params
 from pipeline.io.runner import stage_main
 from pipeline.io.store import atomic_output, create_group, create_timed, open_group
@@ -44,30 +44,6 @@ def fit_pca(x: np.ndarray, n_components: int) -> dict:
     comps *= np.where(comps[np.arange(n_components), np.abs(comps).argmax(1)] < 0, -1, 1)[:, None]  # sign convention
     return dict(mean=mean, components=comps, explained_variance=var[:n_components],
                 explained_variance_ratio=var[:n_components] / var.sum())
-
-
-def resample_to_100hz(coeffs: np.ndarray, valid: np.ndarray, frame_time: np.ndarray, n_out: int,
-                      rate: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation of per-frame coefficients onto t = i / rate, i < n_out.
-
-    Parameters
-    ----------
-    coeffs : (T, k); valid : (T,) bool; frame_time : (T,) seconds from the video start.
-
-    Returns
-    -------
-    (n_out, k) float32 and (n_out,) bool — valid where both bracketing frames are valid
-    (times past the last frame hold the last frame, valid if it is).
-    """
-    t = np.arange(n_out) / rate
-    hi = np.clip(np.searchsorted(frame_time, t, side="right"), 1, len(frame_time) - 1)
-    lo = hi - 1
-    span = np.maximum(frame_time[hi] - frame_time[lo], 1e-9)
-    w = np.clip((t - frame_time[lo]) / span, 0.0, 1.0)[:, None]
-    filled = np.where(valid[:, None], coeffs, 0.0)
-    out = (1 - w) * filled[lo] + w * filled[hi]
-    ok = (valid[lo] | (w[:, 0] == 1.0)) & (valid[hi] | (w[:, 0] == 0.0))
-    return out.astype(np.float32), ok
 
 
 def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: str, out: str) -> dict:

@@ -11,6 +11,8 @@ What it shows, from the files the other stages write:
   evaluated clips (worst, median and best by mouth error when there are more than three), the
   inner-lip opening over time of the output against the original, and the diagnostic video
   (target | result | texture, H.264) copied next to the page;
+- with ``report.benches`` (a folder of bench results; ``bench/report.py`` sets it): the
+  ``lipsynth speak`` path beside the DVC path, and other people's voices per person and model;
 - synthesis speed per phase from ``logs/*.timing.json`` when present (untracked: "not measured"
   otherwise), the params file, the git commit and the date.
 
@@ -305,6 +307,58 @@ def opening_plot(rows: list[dict], clip: str) -> str:
     return svg(fig, f"opening-{clip}")
 
 
+def voice_rows(cross: dict) -> list[list[str]]:
+    """Rows of the other-voices table (``bench/cross_speaker.py``'s json): per model, per person."""
+    rows = []
+    for r in cross.get("models", {}).values():
+        for person, g in r.get("groups", {}).items():
+            rows.append([r.get("label", "?"), person, str(g.get("n")), fmt(g.get("median_corr_lag0")),
+                         fmt(g.get("median_corr_best")), fmt(g.get("within_one_frame"), pct=True),
+                         f"{num(g.get('median_source_offset')):+.0f}", fmt(g.get("median_corr_source_lag"))])
+        u = r.get("unseen")
+        if u and r.get("unseen_people") and len(r["unseen_people"]) < len(r.get("groups", {})):
+            rows.append([r.get("label", "?"), "unseen by every model: " + ", ".join(r["unseen_people"]), str(u.get("n")),
+                         fmt(u.get("median_corr_lag0")), fmt(u.get("median_corr_best")),
+                         fmt(u.get("within_one_frame"), pct=True), "—", "—"])
+        d = r.get("in_domain") or {}
+        rows.append([r.get("label", "?"), f"all {r.get('core_clips')} core clips", str(r.get("core_clips")),
+                     fmt(r.get("median_corr_lag0")), fmt(r.get("median_corr_best")),
+                     fmt(r.get("within_one_frame"), pct=True), "—", fmt(r.get("median_corr_source_lag")) +
+                     (f" (in-domain {fmt(d.get('mouth_error_iod_pct'), 3)} % IOD)" if d else "")])
+    return rows
+
+
+def voice_plot(cross: dict) -> str:
+    """Median opening correlation at the best lag, per person (bars) and model (colours)."""
+    models = list(cross.get("models", {}).values())
+    people = sorted({g for r in models for g in r.get("groups", {})})
+    fig, ax = figure(6.4, 3.0)
+    width = 0.8 / max(len(models), 1)
+    for i, r in enumerate(models):
+        g = r.get("groups", {})
+        xs = [j + (i - (len(models) - 1) / 2) * width for j in range(len(people))]
+        ax.bar(xs, [num((g.get(p) or {}).get("median_corr_best")) for p in people], width, label=r.get("label", "?"))
+        ax.plot(xs, [num((g.get(p) or {}).get("median_corr_lag0")) for p in people], "k_", ms=8)
+    ax.set_xticks(range(len(people)), people), ax.set_ylabel("opening corr (bar: best lag; –: lag 0)")
+    ax.set_ylim(-0.2, 1.0), ax.grid(alpha=0.3, axis="y"), ax.legend(fontsize=7)
+    return svg(fig, "voices")
+
+
+PATH_COLUMNS = (("mouth error (px)", "mouth_error_px", 3), ("ratio to static mouth", "error_ratio", 2),
+                ("opening corr", "opening_corr", 3), ("within one frame", "within_1_frame", None),
+                ("sharpness ratio", "sharpness_ratio", 2), ("flicker ratio", "flicker_ratio", 2))
+
+
+def path_rows(quality: dict[str, dict | None]) -> list[list[str]]:
+    """One row per synthesis path (``bench/synthesis_quality.py`` jsons): medians over its clips."""
+    rows = []
+    for label, q in quality.items():
+        if q:
+            m = q.get("median", {})
+            rows.append([label, str(q.get("clips"))] + [fmt(m.get(k), d or 2, pct=d is None) for _, k, d in PATH_COLUMNS])
+    return rows
+
+
 # ---------------------------------------------------------------- the page
 
 CSS = """
@@ -389,6 +443,21 @@ def build_html(ctx: dict) -> str:
             parts.append(f"<video controls muted preload=\"auto\" src=\"{e(src)}\" data-duration=\"{duration:.3f}\">"
                          "</video><p class=\"meta\">target | result | synthesized texture</p>")
         parts.append("</div>")
+    if any((ctx.get("paths") or {}).values()):
+        parts.append("<h2>The DVC path and the <code>lipsynth speak</code> path</h2><p>The same validation clips "
+                     "synthesized (no re-timing) through the stages and through <code>lipsynth speak</code> on the clip "
+                     "files (each clip's own audio into its own video), medians over clips "
+                     "(<code>bench/synthesis_quality.py</code>).</p>")
+        parts.append(table(["path", "clips"] + [c for c, _, _ in PATH_COLUMNS], path_rows(ctx["paths"]), "paths"))
+    if ctx.get("voices"):
+        parts.append("<h2>Other voices (people the models never saw)</h2><p>Per clip, the inner-lip opening predicted "
+                     "from the clip's own audio against the opening tracked on the clip; median Pearson correlation at "
+                     "lag 0 and at the best lag within ±5 frames, share of clips whose best lag is within one frame, "
+                     "and the source clip's own audio–video offset (speech envelope against the tracked opening, no "
+                     "model) with the correlation at that offset (<code>bench/cross_speaker.py</code>).</p>")
+        parts.append(table(["model (front end)", "person", "clips", "corr lag 0", "corr best lag", "within one frame",
+                            "source offset (frames)", "corr at source offset"], voice_rows(ctx["voices"]), "voices"))
+        parts.append(f"<div class=\"plot\" id=\"plot-voices\">{voice_plot(ctx['voices'])}</div>")
     parts.append("<h2>Synthesis speed</h2>" + timing_tables(ctx.get("timings", {})))
     parts.append(f"<h2>Parameters</h2><pre id=\"params\">{e(ctx.get('params_text', ''))}</pre>")
     parts.append("</body></html>\n")
@@ -414,9 +483,21 @@ def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[d
                loss_rows=read_csv(root / params.train.plots), sweep_rows=read_csv(root / params.delay_sweep.plots),
                paper_delay_ms=params.report.paper_delay_ms, evaluate=ev, clips=clips,
                timings={n: read_json(root / "logs" / f"{n}.timing.json") for n in TIMING_LOGS},
-               params_text=shown_params(params), commit=git_commit(root),
+               params_text=shown_params(params), commit=git_commit(root), **benches(params.report.benches, root),
                date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"))
     return ctx, copies
+
+
+def benches(folder: str | None, root: Path) -> dict:
+    """Bench results shown when ``report.benches`` names their folder (``bench/report.py`` does):
+    cross_speaker.json and the synthesis-quality jsons of the DVC and the speak paths."""
+    if not folder:
+        return {}
+    d = root / folder
+    return dict(voices=read_json(d / "cross_speaker.json"),
+                paths={"DVC stages (candidates from other videos)": read_json(d / "synthesis_quality.json"),
+                       "DVC stages (target's own frames in the pool)": read_json(d / "synthesis_quality_target_in_pool.json"),
+                       "lipsynth speak (clip files)": read_json(d / "synthesis_quality_speak.json")})
 
 
 SHOWN_SECTIONS = ("synthetic_speaker", "data", "ingest", "landmarks", "frontalize", "pca", "train", "brand", "karras", "delay_sweep",

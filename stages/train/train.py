@@ -29,6 +29,7 @@ from pipeline.measures import mouth_metrics
 from pipeline.models.speaker_bank import export_speaker
 from pipeline.models.model_folder import save_model
 from pipeline.models.mouth_prediction import to_frames
+from stages.train import extra_corpora
 
 log = logging.getLogger("lipsynth.train")
 MODELS = ("lstm",)
@@ -156,6 +157,8 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     if p.model not in MODELS:
         raise ParameterError(f"train.model={p.model!r}: choose one of {', '.join(MODELS)}")
     data, basis, pattrs = load_sequences(ingest_path, pca_path, p.features, phonetic_path, whisper_path)
+    own_train = list(data["train"])
+    data["train"] += extra_corpora.load(p.extra_corpora, p.features, basis, pattrs["iod_px"], p.extra_repeat)
     device = pick_device(p.device)
     mean, std = feature_normalisation(data, p.feature_norm, p.features)
     if p.vtlp_warps or p.pitch_shifts:
@@ -167,6 +170,8 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
         bad = [a for a in p.pitch_shifts if not isinstance(a, (int, float)) or not -12 <= a <= 12]
         if bad:
             raise ParameterError(f"train.pitch_shifts: {bad[0]!r} is not a shift between -12 and 12 semitones")
+        if p.extra_corpora:
+            raise ParameterError("train.vtlp_warps / train.pitch_shifts do not apply to train.extra_corpora")
         secs = augmented_copies(data, ingest_path, p.vtlp_warps, p.pitch_shifts, p.features, p.feature_norm)
         log.info("augmentation: %d VTLP copies (α = %s) and %d pitch-shifted copies (%s semitones) of every training "
                  "video in %.1f s", len(p.vtlp_warps), ", ".join(f"{a:g}" for a in p.vtlp_warps) or "-",
@@ -183,8 +188,8 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
                "step_kept": kept, "train_loss": best["train_loss"], "val_loss": best["val_loss"],
                "val": score(preds, data, basis, pattrs["iod_px"])}
     k = basis["components"].shape[0]
-    rest = rest_shape(data["train"], ingest_path)
-    mean_shape = np.concatenate([s["y"][s["ok"]] for s in data["train"]]).mean(0)
+    rest = rest_shape(own_train, ingest_path)
+    mean_shape = np.concatenate([s["y"][s["ok"]] for s in own_train]).mean(0)
     metrics["baseline_mean_shape"] = score([np.tile(mean_shape, (len(s["x"]), 1)) for s in data["val"]],
                                            data, basis, pattrs["iod_px"])
     curves = {f"{p.model}": history}

@@ -1,0 +1,90 @@
+"""Build a base model that transfers: the main corpus plus other people's footage (issue 23).
+
+    python bench/base_model.py runs/grid_s1/params.yaml --out runs/base \
+        --person obama=../shared/data/obama --person hdtf=../shared/data/hdtf [--repeat 20]
+
+The main corpus' stores must exist (``bench/report.py configs/grid_s1.yaml`` or the stages run with
+that params file). Every ``--person NAME=VIDEOS`` (a video, a folder of videos or a glob) is
+preprocessed by the pipeline's own stages — ingest → landmarks → frontalize → whisper, with the
+main params (on bad input: skip) — into ``<out>/people/NAME/``; then ``stages.train.train`` trains
+the main params' model with ``train.extra_corpora`` = those folders (``stages/train/extra_corpora``:
+each clip's own mouth motion about the main speaker's mean shape, in the main PCA basis), writing
+the model folder ``<out>/model`` and its metrics ``<out>/train.json``. A person's stores are
+reused when they exist. Prints the seconds per step.
+
+Keep people out of the base whom you will evaluate on as other voices or personalize later
+(GRID s4, Macron, Lieu here): ``bench/cross_speaker.py --model <out>/model`` then measures
+transfer on people neither model saw.
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.params import as_dict, parse  # noqa: E402
+
+PERSON_STAGES = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
+                 ("frontalize", "stages.frontalize.frontalize"), ("whisper", "stages.whisper.whisper")]
+
+
+def person_params(main: dict, videos: str, folder: Path) -> dict:
+    """The main params with this person's videos and every store inside ``folder``."""
+    tree = yaml.safe_load(yaml.safe_dump(main))
+    tree["data"].update(videos=videos, on_bad_input="skip", val_fraction=0.0)
+    for stage, _ in PERSON_STAGES:
+        tree[stage]["out"] = str(folder / f"{stage}.zarr")
+    return as_dict(parse(tree, str(folder / "params.yaml")))
+
+
+def run(module: str, params_file: Path) -> float:
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", module, "--params", str(params_file)], cwd=ROOT, check=True)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("params", type=Path, help="the main corpus' params file (its stores must exist)")
+    ap.add_argument("--person", action="append", default=[], metavar="NAME=VIDEOS", required=True,
+                    help="another person's footage (repeatable)")
+    ap.add_argument("--out", type=Path, default=ROOT / "runs" / "base")
+    ap.add_argument("--repeat", type=int, default=20, help="each extra video appears this many times per epoch")
+    ap.add_argument("--steps", type=int, default=None, help="training budget (default: the params file's)")
+    a = ap.parse_args()
+    main_params = yaml.safe_load(a.params.read_text())
+    folders = []
+    for spec in a.person:
+        name, _, videos = spec.partition("=")
+        if not name or not videos:
+            ap.error(f"--person {spec!r}: write NAME=VIDEOS")
+        folder = (a.out / "people" / name).resolve()
+        folder.mkdir(parents=True, exist_ok=True)
+        pfile = folder / "params.yaml"
+        pfile.write_text(yaml.safe_dump(person_params(main_params, videos, folder), sort_keys=False))
+        for stage, module in PERSON_STAGES:
+            if (folder / f"{stage}.zarr").exists():
+                print(f"== {name} {stage}: exists, kept", flush=True)
+                continue
+            print(f"== {name} {stage}: {run(module, pfile):.0f} s", flush=True)
+        folders.append(str(folder))
+    tree = yaml.safe_load(yaml.safe_dump(main_params))
+    tree["train"].update(extra_corpora=folders, extra_repeat=a.repeat, baselines=False,
+                         out=str((a.out / "model").resolve()), metrics=str((a.out / "train.json").resolve()),
+                         plots=str((a.out / "train_loss.csv").resolve()))
+    if a.steps:
+        tree["train"]["steps"] = a.steps
+    tfile = a.out / "params.yaml"
+    tfile.write_text(yaml.safe_dump(as_dict(parse(tree, str(tfile))), sort_keys=False))
+    print(f"== base model: {run('stages.train.train', tfile):.0f} s → {a.out / 'model'}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
