@@ -2,16 +2,55 @@
 
 Stages describe their work as a plain list of task arguments (shard ranges, videos) and hand
 it to ``run_tasks``; nothing else in a stage knows about dask.
+
+A dask scheduler runs whatever code a client sends it, so whoever can reach its port can run
+code as the user who started the workers. The LocalCluster listens on 127.0.0.1 only; a real
+cluster should bind to a private interface and use TLS: a ``tls://`` address connects with the
+certificates of ``cluster.security`` (``distributed.security.Security``), and
+``cluster.security.require_encryption`` refuses a plain ``tcp://`` address.
 """
 from __future__ import annotations
 
 import contextlib
 import logging
 import os
+from pathlib import Path
 
 from tqdm import tqdm
 
+from pipeline.errors import LipsynthError
+
 log = logging.getLogger("lipsynth.parallel")
+
+_OWN_CLUSTERS: set[str] = set()     # addresses of the LocalClusters this process started (127.0.0.1 only)
+
+
+def security_for(cluster):
+    """The ``distributed.security.Security`` to reach ``cluster.address`` with, or None (tcp).
+
+    ``cluster.security``'s files override dask's own configuration (``distributed.comm.tls.*``,
+    read by ``Security()``); a tls:// address without a CA and a client certificate in either is
+    an error, and so is a tcp:// address when ``require_encryption`` is set — except a
+    LocalCluster this process started itself, which listens on the loopback interface only.
+    """
+    from distributed.security import Security
+
+    sec, address = cluster.security, cluster.address or ""
+    files = {k: getattr(sec, k) for k in ("tls_ca_file", "tls_client_cert", "tls_client_key")}
+    for key, path in files.items():
+        if path and not Path(path).is_file():
+            raise LipsynthError(f"cluster.security.{key}: {path} not found")
+    if address.startswith("tls://"):
+        security = Security(require_encryption=sec.require_encryption or None,
+                            **{k: str(Path(v).absolute()) for k, v in files.items() if v})
+        if not security.tls_ca_file or not security.tls_client_cert:
+            raise LipsynthError(f"cluster.address {address} is tls:// but no certificates are set: set "
+                                "cluster.security.tls_ca_file and .tls_client_cert (and .tls_client_key)")
+        return security
+    if sec.require_encryption and address not in _OWN_CLUSTERS:
+        raise LipsynthError(f"cluster.address {address!r} is not encrypted and cluster.security.require_encryption "
+                            "is set: use a tls:// scheduler (README: Running on a real cluster)")
+    return None
 
 
 @contextlib.contextmanager
@@ -21,8 +60,9 @@ def client_for(cluster):
     Parameters
     ----------
     cluster : pipeline.params.Cluster
-        ``address`` (str or None): a running scheduler (``tcp://host:8786``); None starts a
-        LocalCluster with ``n_workers`` (None → one per core) single-threaded worker processes.
+        ``address`` (str or None): a running scheduler (``tcp://host:8786``, or ``tls://host:8786``
+        with ``security``); None starts a LocalCluster on 127.0.0.1 with ``n_workers`` (None →
+        one per core) single-threaded worker processes.
     """
     from distributed import Client, LocalCluster
 
@@ -30,16 +70,27 @@ def client_for(cluster):
         logging.getLogger(name).setLevel(logging.WARNING)
     address = cluster.address
     if address:
-        log.info("connecting to dask scheduler %s", address)
-        with Client(address, timeout=cluster.connect_timeout) as c:
+        security = security_for(cluster)
+        log.info("connecting to dask scheduler %s%s", address, " (TLS)" if security else "")
+        try:
+            client = Client(address, timeout=cluster.connect_timeout, security=security)
+        except (OSError, TimeoutError) as exc:
+            raise LipsynthError(f"cannot reach the dask scheduler at {address} within cluster.connect_timeout="
+                                f"{cluster.connect_timeout:g} s ({exc})") from None
+        with client as c:
             yield c
         return
+    security_for(cluster)               # validates the files named in cluster.security
     n = cluster.n_workers or os.cpu_count() or 1
     log.info("starting LocalCluster with %d worker processes", n)
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                       memory_limit=cluster.memory_limit,
                       dashboard_address=None, silence_logs=logging.WARNING) as lc, Client(lc) as c:
-        yield c
+        _OWN_CLUSTERS.add(lc.scheduler_address)
+        try:
+            yield c
+        finally:
+            _OWN_CLUSTERS.discard(lc.scheduler_address)
 
 
 def run_tasks(client, fn, items: list, desc: str, unit: str = "task", weights: list | None = None) -> list:

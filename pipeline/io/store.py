@@ -9,13 +9,17 @@ Stores record no machine-specific value: paths are relative to the project root
 (``project_path``) and timings stay out of them, so the same inputs give the same bytes and DVC
 hashes wherever the project is checked out.
 
-A stage writes into ``<out>.tmp-<pid>`` and renames it onto ``<out>`` when everything
-succeeded (``atomic_output``), so a failed run never leaves a half-written store.
+A stage writes into ``.<out>.tmp-<pid>`` and renames it onto ``<out>`` when everything
+succeeded (``atomic_output``), so a failed run never leaves a half-written store. A run that is
+killed (SIGKILL, power loss) cannot clean up after itself: the next run of the stage sweeps the
+temporary folders whose process is gone (``sweep_stale_temps``).
 """
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -26,15 +30,60 @@ from zarr.codecs import BloscCodec, BloscShuffle
 COMPRESSOR = BloscCodec(cname="zstd", clevel=5, shuffle=BloscShuffle.bitshuffle)     # numbers
 IMAGE_COMPRESSOR = BloscCodec(cname="zstd", clevel=3, shuffle=BloscShuffle.noshuffle)  # uint8 pixels
 
+log = logging.getLogger("lipsynth.store")
+
+
+def pid_alive(pid: int) -> bool:
+    """Is ``pid`` a running process on this machine? (A process of another user counts as alive.)"""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def sweep_stale_temps(out: str | os.PathLike) -> list[Path]:
+    """Remove the leftovers of killed writers of ``out``: ``.<name>.tmp-<pid>`` (a store being
+    written) and ``.<name>.old-<pid>`` (the previous store being replaced) beside it whose pid is
+    not a live process. Logs one line per folder removed and returns them.
+
+    Folders of live processes (another run writing the same output right now), of this process,
+    and every other name are left alone. The pid is checked on this machine: two hosts writing
+    the same output over a shared filesystem at the same time is not supported anyway (the
+    stage driver — the process that runs ``dvc repro`` — is one process on one host).
+    """
+    out = Path(out).absolute()
+    if not out.parent.is_dir():
+        return []
+    pattern = re.compile(rf"^\.{re.escape(out.name)}\.(tmp|old)-(\d+)$")
+    swept = []
+    for path in sorted(out.parent.iterdir()):
+        m = pattern.match(path.name)
+        if not m or int(m.group(2)) == os.getpid() or pid_alive(int(m.group(2))):
+            continue
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+        log.info("removed %s: left behind by process %s, which is no longer running", path, m.group(2))
+        swept.append(path)
+    return swept
+
 
 @contextlib.contextmanager
 def atomic_output(out: str | os.PathLike):
     """Yield a temporary path next to ``out``; on success replace ``out`` with it.
 
-    On any exception the temporary directory is removed and ``out`` is left as it was.
+    On any exception the temporary directory is removed and ``out`` is left as it was. Stale
+    temporary folders of killed earlier runs are swept first (``sweep_stale_temps``).
     """
     out = Path(out).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
+    sweep_stale_temps(out)
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
     shutil.rmtree(tmp, ignore_errors=True)
     try:
