@@ -244,6 +244,12 @@ def test_cluster_security_maps_onto_dask_security(tmp_path):
     assert security_for(Cluster(address="tcp://10.0.0.5:8786")) is None
     with pytest.raises(LipsynthError, match="not encrypted and cluster.security.require_encryption"):
         security_for(Cluster(address="tcp://10.0.0.5:8786", security=security_params(certs)))
+    from pipeline.io import parallel                    # ... but a LocalCluster of this process (127.0.0.1) is fine:
+    parallel._OWN_CLUSTERS.add("tcp://127.0.0.1:45678")  # lipsynth.target reconnects its stages to the one it started
+    try:
+        assert security_for(Cluster(address="tcp://127.0.0.1:45678", security=security_params(certs))) is None
+    finally:
+        parallel._OWN_CLUSTERS.discard("tcp://127.0.0.1:45678")
     with pytest.raises(LipsynthError, match="tls:// but no certificates"):
         security_for(Cluster(address="tls://10.0.0.5:8786"))
     with pytest.raises(LipsynthError, match=r"cluster.security.tls_client_key: .*missing.key not found"):
