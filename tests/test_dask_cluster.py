@@ -242,6 +242,7 @@ def test_cluster_security_maps_onto_dask_security(tmp_path):
     assert sec.tls_ca_file == str(certs["ca"]) and sec.tls_client_cert == str(certs["client_cert"])
     assert sec.tls_client_key == str(certs["client_key"]) and sec.require_encryption
     assert security_for(Cluster(address="tcp://10.0.0.5:8786")) is None
+    assert security_for(Cluster(address=None, security=security_params(certs))) is None      # LocalCluster
     with pytest.raises(LipsynthError, match="not encrypted and cluster.security.require_encryption"):
         security_for(Cluster(address="tcp://10.0.0.5:8786", security=security_params(certs)))
     from pipeline.io import parallel                    # ... but a LocalCluster of this process (127.0.0.1) is fine:

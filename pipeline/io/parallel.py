@@ -31,7 +31,8 @@ def security_for(cluster):
     ``cluster.security``'s files override dask's own configuration (``distributed.comm.tls.*``,
     read by ``Security()``); a tls:// address without a CA and a client certificate in either is
     an error, and so is a tcp:// address when ``require_encryption`` is set — except a
-    LocalCluster this process started itself, which listens on the loopback interface only.
+    LocalCluster (no address, or one this process started itself: ``lipsynth.target`` hands its
+    address to the stages), which listens on the loopback interface only.
     """
     from distributed.security import Security
 
@@ -47,7 +48,7 @@ def security_for(cluster):
             raise LipsynthError(f"cluster.address {address} is tls:// but no certificates are set: set "
                                 "cluster.security.tls_ca_file and .tls_client_cert (and .tls_client_key)")
         return security
-    if sec.require_encryption and address not in _OWN_CLUSTERS:
+    if sec.require_encryption and address and address not in _OWN_CLUSTERS:
         raise LipsynthError(f"cluster.address {address!r} is not encrypted and cluster.security.require_encryption "
                             "is set: use a tls:// scheduler (README: Running on a real cluster)")
     return None
