@@ -160,12 +160,15 @@ class Train:
     pitch_shifts: list = field(default_factory=list)
     extra_corpora: list = field(default_factory=list)
     extra_repeat: int = 1
+    init_from: str | None = None
+    fine_tune: str = "all"
+    train_seconds: float | None = None
     seed: int = 0
     device: str = "auto"
     bank_frames: int = 3000
     identity_frames: int = 60
 
-    CHOICES = {"model": ("lstm",), "feature_norm": ("corpus", "utterance"),
+    CHOICES = {"model": ("lstm",), "feature_norm": ("corpus", "utterance"), "fine_tune": ("all", "output"),
                "features": ("mfcc", "phonetic", "mfcc+phonetic", "whisper")}
 
 

@@ -329,6 +329,32 @@ def test_a_store_read_as_an_extra_corpus_keeps_each_videos_motion(project):
 
 
 @pytest.mark.slow
+def test_fine_tuning_from_a_model_folder_trains_only_what_it_is_told(project, tmp_path):
+    """train.init_from starts from a model folder (here the demo's own LSTM): with fine_tune: output the
+    recurrent weights stay the base's and the read-out moves; a base of another front end is one line."""
+    import torch
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    params["train"].update(init_from=str(project / "models" / "lstm"), fine_tune="output", steps=20, baselines=False,
+                           out=str(tmp_path / "m"), metrics=str(tmp_path / "m.json"), plots=str(tmp_path / "m.csv"))
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    r = subprocess.run([sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")],
+                       cwd=project, capture_output=True, text=True, timeout=1200)
+    assert r.returncode == 0, r.stderr[-2000:]
+    base = torch.load(project / "models" / "lstm" / "weights.pt", weights_only=True)
+    tuned = torch.load(tmp_path / "m" / "weights.pt", weights_only=True)
+    for k in base:
+        same = torch.equal(base[k], tuned[k])
+        assert same == k.startswith("lstm."), k
+    cfg = json.loads((tmp_path / "m" / "config.json").read_text())
+    assert cfg["params"]["init_from"] == str(project / "models" / "lstm") and cfg["hidden"] == 60
+    params["train"].update(features="mfcc", fine_tune="all")
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    r = subprocess.run([sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")],
+                       cwd=project, capture_output=True, text=True, timeout=600)
+    assert r.returncode != 0 and "reads 'whisper' features" in r.stderr.strip().splitlines()[-1], r.stderr[-800:]
+
+
+@pytest.mark.slow
 def test_brand_param_reruns_only_train_brand(project):
     with edited_params(project, "brand", "decode", "posterior"):
         status = json.loads(dvc(project, "status", "--json").strip().splitlines()[-1])

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from pipeline.errors import ParameterError
-from pipeline.models.training_budget import Budget, EarlyStopping, StepPlan, format_duration, plan_text
+from pipeline.models.training_budget import Budget, EarlyStopping, StepPlan, format_duration, plan_text, seeded_subset
 from pipeline.params import Train
 
 
@@ -67,3 +67,13 @@ def test_lstm_runs_its_step_budget_and_early_stopping_keeps_the_best_weights():
     best = min(hist, key=lambda h: h["val_loss"])
     assert hist[-1]["step"] < 400 and kept == best["step"] and hist[-1]["step"] == kept + 3 * 4
     assert lstm.evaluate_loss(model, val, 0, "cpu") == pytest.approx(best["val_loss"], rel=1e-5)
+
+
+def test_seeded_subset_first_reaches_the_seconds_and_is_reproducible():
+    durations = [3.0] * 28
+    assert seeded_subset(durations, None, 0) == list(range(28))
+    a = seeded_subset(durations, 20.0, 0)
+    assert len(a) == 7 and len(set(a)) == 7                       # 18 s < 20 s ≤ 21 s
+    assert a == seeded_subset(durations, 20.0, 0) != seeded_subset(durations, 20.0, 1)
+    assert seeded_subset(durations, 40.0, 0)[:7] == a             # a longer budget extends the shorter one
+    assert sorted(seeded_subset(durations, 1e9, 0)) == list(range(28))

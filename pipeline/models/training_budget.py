@@ -27,6 +27,8 @@ import math
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from pipeline.errors import ParameterError
 
 
@@ -114,3 +116,18 @@ class EarlyStopping:
             return False
         self.flat += 1
         return self.budget.patience is not None and self.flat >= self.budget.patience
+
+
+def seeded_subset(durations: list[float], seconds: float | None, seed: int) -> list[int]:
+    """Indices of a seeded random subset of videos whose durations (s) first reach ``seconds``
+    (all indices, in order, when ``seconds`` is None or 0): the short-footage regimes of papers
+    001 (3–5 min) and 002 (about 60 s), and learning curves."""
+    if not seconds:
+        return list(range(len(durations)))
+    out, total = [], 0.0
+    for i in np.random.default_rng(seed).permutation(len(durations)):
+        if total >= seconds:
+            break
+        out.append(int(i))
+        total += durations[i]
+    return out

@@ -62,7 +62,7 @@ def masked_l2(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> t
 
 
 def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: int = 0,
-          desc: str = "lstm", budget: Budget | None = None) -> tuple[DelayedLSTM, list[dict], int]:
+          desc: str = "lstm", budget: Budget | None = None, init: dict | None = None) -> tuple[DelayedLSTM, list[dict], int]:
     """Train one model for a budget of optimizer steps (``pipeline.models.training_budget``).
 
     Parameters
@@ -70,7 +70,9 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
     train_seqs, val_seqs : list of (x (m, D) normalised float32, y (m, 20), ok (m,) bool); a training
         x may also be (K, m, D): K augmented copies of the same audio, one drawn per epoch
     p : train params (hidden, layers, batch_size, bptt, lr; steps, val_every, patience unless
-        ``budget`` is given).
+        ``budget`` is given; ``fine_tune`` when ``init`` is given).
+    init : a starting point (``stages/train/fine_tune.initial_state``: state, hidden, layers) instead
+        of random weights; ``p.fine_tune == "output"`` then trains the read-out layer only.
 
     Returns
     -------
@@ -84,8 +86,15 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     n_in, n_out = train_seqs[0][0].shape[-1], train_seqs[0][1].shape[1]
-    model = DelayedLSTM(n_in, p.hidden, n_out, p.layers).to(device)
-    opt = torch.optim.Adam(model.parameters(), lr=p.lr)
+    if init is None:
+        model = DelayedLSTM(n_in, p.hidden, n_out, p.layers).to(device)
+        trained = list(model.parameters())
+    else:
+        model = DelayedLSTM(n_in, init["hidden"], n_out, init["layers"])
+        model.load_state_dict(init["state"])
+        model = model.to(device)
+        trained = list(model.out.parameters()) if p.fine_tune == "output" else list(model.parameters())
+    opt = torch.optim.Adam(trained, lr=p.lr)
     # x may hold K variants (K, m, n_in) of the same audio (VTLP copies): each epoch draws one per video
     variants = [[delayed_pairs(xv, y, ok, delay) for xv in (x if x.ndim == 3 else x[None])] for x, y, ok in train_seqs]
     frames = sum(len(v[0][0]) for v in variants)

@@ -27,9 +27,10 @@ from pipeline.io.runner import stage_main, write_timing
 from pipeline.io.store import atomic_output, open_group
 from pipeline.measures import mouth_metrics
 from pipeline.models.speaker_bank import export_speaker
+from pipeline.models.training_budget import seeded_subset
 from pipeline.models.model_folder import save_model
 from pipeline.models.mouth_prediction import to_frames
-from stages.train import extra_corpora
+from stages.train import extra_corpora, fine_tune
 
 log = logging.getLogger("lipsynth.train")
 MODELS = ("lstm",)
@@ -122,7 +123,7 @@ def augmented_copies(data: dict, ingest_path: str, warps: list, shifts: list, fe
     return time.perf_counter() - t0
 
 
-def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm"):
+def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm", init: dict | None = None):
     from stages.train import lstm
     norm = lambda s: ((s["x"] - mean) / std, s["y"], s["ok"])
 
@@ -131,7 +132,7 @@ def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm"):
             return norm(s)
         return (np.concatenate([s["x"][None], s["x_aug"]]) - mean) / std, s["y"], s["ok"]
     model, history, kept = lstm.train([norm_train(s) for s in data["train"]], [norm(s) for s in data["val"]], p, delay,
-                                      device, seed=p.seed, desc=desc)
+                                      device, seed=p.seed, desc=desc, init=init)
     preds = [lstm.predict_sequence(model, norm(s)[0], delay, device) for s in data["val"]]
     return model, history, preds, kept
 
@@ -157,10 +158,29 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     if p.model not in MODELS:
         raise ParameterError(f"train.model={p.model!r}: choose one of {', '.join(MODELS)}")
     data, basis, pattrs = load_sequences(ingest_path, pca_path, p.features, phonetic_path, whisper_path)
+    if p.train_seconds:
+        keep = seeded_subset([len(s["x"]) / 100 for s in data["train"]], p.train_seconds, p.seed)
+        data["train"] = [data["train"][i] for i in keep]
+        log.info("train.train_seconds=%g: %d of the training videos (%.1f s), seeded", p.train_seconds, len(keep),
+                 sum(len(s["x"]) for s in data["train"]) / 100)
     own_train = list(data["train"])
     data["train"] += extra_corpora.load(p.extra_corpora, p.features, basis, pattrs["iod_px"], p.extra_repeat)
     device = pick_device(p.device)
     mean, std = feature_normalisation(data, p.feature_norm, p.features)
+    init = None
+    if p.init_from:
+        init = fine_tune.initial_state(p.init_from, p.features, encoder_settings(p.features, whisper_path), basis,
+                                       pattrs["iod_px"], device)
+        base = init["base_config"]
+        if (base.get("feature_norm", "corpus"), int(base["delay"])) != (p.feature_norm, p.delay):
+            raise ParameterError(f"train.init_from={p.init_from}: the base model has feature_norm "
+                                 f"{base.get('feature_norm', 'corpus')!r} and delay {base['delay']}, this run "
+                                 f"{p.feature_norm!r} and {p.delay}")
+        if p.fine_tune not in fine_tune.PARTS:
+            raise ParameterError(f"train.fine_tune={p.fine_tune!r}: choose one of {', '.join(fine_tune.PARTS)}")
+        mean, std = init["feature_mean"], init["feature_std"]          # the base's weights expect its normalisation
+        log.info("fine-tuning from %s (%s weights trained; its read-out re-expressed in this store's PCA basis)",
+                 p.init_from, p.fine_tune)
     if p.vtlp_warps or p.pitch_shifts:
         if not front_ends.uses_mfcc(p.features):
             raise ParameterError(f"train.vtlp_warps / train.pitch_shifts augment MFCC: train.features={p.features!r} has none")
@@ -180,7 +200,7 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
              p.features, mean.shape[0], len(data["train"]), sum(len(s["x"]) for s in data["train"]), len(data["val"]),
              device)
     t0 = time.perf_counter()
-    model, history, preds, kept = fit_lstm(data, p, p.delay, device, mean, std)
+    model, history, preds, kept = fit_lstm(data, p, p.delay, device, mean, std, init=init)
     clock = {"fit_s": time.perf_counter() - t0, "steps": history[-1]["step"]}
     clock["seconds_per_step"] = clock["fit_s"] / max(clock["steps"], 1)
     best = kept_point(history, kept)
@@ -204,7 +224,7 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
              p.model, metrics["val"]["mouth_error_px"], metrics["val"]["mouth_error_iod_pct"],
              metrics["baseline_mean_shape"]["mouth_error_px"], metrics["ratio_to_mean_shape"])
     with atomic_output(p.out) as tmp:
-        save_model(tmp, model, dict(model=p.model, delay=p.delay, hidden=p.hidden, layers=p.layers,
+        save_model(tmp, model, dict(model=p.model, delay=p.delay, hidden=model.lstm.hidden_size, layers=model.lstm.num_layers,
                                     n_features=int(mean.shape[0]), n_components=k, feature_rate=100.0,
                                     feature_norm=p.feature_norm, features=p.features, params=as_dict(p),
                                     encoder=encoder_settings(p.features, whisper_path)),

@@ -38,6 +38,7 @@ from pipeline.models.model_folder import load_karras, save_karras
 from pipeline.params import Params, as_dict
 from pipeline.io.runner import stage_main, write_timing
 from pipeline.models.speaker_bank import export_speaker
+from pipeline.models.training_budget import seeded_subset
 from pipeline.audio.speech_autocorrelation import padded_track, windows
 from pipeline.io.store import atomic_output, open_group
 from stages.train_karras import emotions as emotion_mining
@@ -50,16 +51,7 @@ UPPER, LOWER = FACE_POINTS.index(62), FACE_POINTS.index(66)       # inner-lip mi
 
 def choose_training_videos(train: list[dict], seconds: float | None, seed: int) -> list[dict]:
     """All training videos, or a seeded random subset whose durations first reach ``seconds``."""
-    if not seconds:
-        return train
-    order = np.random.default_rng(seed).permutation(len(train))
-    out, total = [], 0.0
-    for i in order:
-        if total >= seconds:
-            break
-        out.append(train[i])
-        total += len(train[i]["samples"]) / 16000
-    return out
+    return [train[i] for i in seeded_subset([len(v["samples"]) / 16000 for v in train], seconds, seed)]
 
 
 def validation_sample(val: list[dict], n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
