@@ -183,6 +183,7 @@ def test_a_worker_killed_in_the_middle_of_landmarks(tmp_path, grid_preprocessed)
 
 def make_certs(folder: Path, ca_name="lipsynth test CA") -> dict:
     """A throwaway CA and two certificates it signed (nodes: scheduler and workers; the client)."""
+    pytest.importorskip("cryptography", reason="cryptography (installed with dvc, via scmrepo → asyncssh) is absent")
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes, serialization
     from cryptography.hazmat.primitives.asymmetric import ec
