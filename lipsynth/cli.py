@@ -28,6 +28,8 @@ COMMANDS = {
     "dvc-deps": ("lipsynth.dvc_deps", "check (or --write) the code deps of dvc.yaml's stages, derived from their imports"),
     "speak": ("lipsynth.speak", "audio + any video of the speaker → lip-synced MP4 (preprocesses the target)"),
     "render-mesh": ("lipsynth.render_mesh", "audio → animated 3D lower face of the model's speaker (pyvista, front + 3/4 view) → MP4"),
+    "cut": ("lipsynth.cut", "one video → consecutive segment files (data.split: time holds out its end)"),
+    "personalize": ("lipsynth.personalize", "a new person's footage (~1 min) → a model folder for speak (fine-tunes a base model)"),
     "report": ("stages.report.report", "regenerate the HTML report (report.out/index.html), print its path; --open"),
 }
 

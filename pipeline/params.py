@@ -43,9 +43,10 @@ class Data:
     videos: str | list = "data/synthetic_speaker"
     val_fraction: float = 0.2
     split_seed: int = 0
+    split: str = "video"
     on_bad_input: str = "error"
 
-    CHOICES = {"on_bad_input": ("error", "skip")}
+    CHOICES = {"on_bad_input": ("error", "skip"), "split": ("video", "time")}
 
 
 @dataclass

@@ -42,6 +42,7 @@ from pipeline.face import dlib_face
 from pipeline.io import media
 from pipeline.errors import BadInputError, LipsynthError, ParameterError
 from pipeline.io.parallel import client_for, run_tasks
+from pipeline.io.segments import time_split
 from pipeline.params import Ingest, Params
 from pipeline.io.runner import stage_main
 from pipeline.io.store import atomic_output, create_group, create_timed, project_path
@@ -295,7 +296,9 @@ def run(params: Params, out: str, require_audio: bool = True) -> list[dict]:
     if p.crop_size % 4:
         raise ParameterError(f"ingest.crop_size={p.crop_size}: must be a multiple of 4 (I420 storage)")
     paths = list_videos(data.videos)
-    splits = split_videos([video_name(q) for q in paths], data.val_fraction, data.split_seed)
+    names = [video_name(q) for q in paths]
+    splits = (time_split(names, data.val_fraction) if data.split == "time"
+              else split_videos(names, data.val_fraction, data.split_seed))
     log.info("ingesting %d videos from %s", len(paths), data.videos)
     entries = []
     for q in paths:
