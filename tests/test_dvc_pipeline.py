@@ -355,6 +355,33 @@ def test_fine_tuning_from_a_model_folder_trains_only_what_it_is_told(project, tm
 
 
 @pytest.mark.slow
+def test_personalize_one_video_split_in_time_from_scratch_and_from_a_base(project, tmp_path):
+    """lipsynth personalize on one 10-s video: cut into segments, the end held out, preprocessed and
+    trained; from scratch and fine-tuned from the demo's LSTM; the figures printed, a speak-ready folder."""
+    video = project / "data" / "synthetic_speaker" / "speaker_01.mp4"
+    common = [sys.executable, "-m", "lipsynth.cli", "personalize", str(video), "--segment-seconds", "2.5"]
+    r = subprocess.run(common + ["--out", str(tmp_path / "scratch"), "--steps", "30", "--work", str(tmp_path / "w1")],
+                       cwd=project, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "held-out footage (1 clips)" in r.stdout and "personalized" in r.stdout, r.stdout
+    idx = zarr.open_group(str(tmp_path / "w1" / "store" / "ingest.zarr")).attrs["videos"]
+    assert [(v["name"], v["split"]) for v in idx] == [(f"speaker_01_s{k:03d}", "train" if k < 3 else "val") for k in range(4)]
+    summary = json.loads((tmp_path / "w1" / "summary.json").read_text())
+    assert np.isfinite(summary["ratio_to_mean_shape"]) and summary["base"] is None
+    assert (tmp_path / "scratch" / "bank.zarr").is_dir() and (tmp_path / "scratch" / "speaker.npz").is_file()
+    r = subprocess.run(common + ["--out", str(tmp_path / "tuned"), "--steps", "10", "--work", str(tmp_path / "w2"),
+                                 "--base", str(project / "models" / "lstm")],
+                       cwd=project, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    tuned = json.loads((tmp_path / "w2" / "summary.json").read_text())
+    cfg = json.loads((tmp_path / "tuned" / "config.json").read_text())
+    assert tuned["base"] == str(project / "models" / "lstm") and cfg["params"]["init_from"] == tuned["base"]
+    # the demo LSTM has seen this speaker: 10 fine-tuning steps beat 30 steps from scratch
+    assert tuned["mouth_error_iod_pct"] < summary["mouth_error_iod_pct"] and tuned["ratio_to_mean_shape"] < 0.9, \
+        (tuned, summary)
+
+
+@pytest.mark.slow
 def test_brand_param_reruns_only_train_brand(project):
     with edited_params(project, "brand", "decode", "posterior"):
         status = json.loads(dvc(project, "status", "--json").strip().splitlines()[-1])
