@@ -3,17 +3,12 @@ import subprocess
 import sys
 
 from tests.conftest import ROOT
+from tests.test_speak import one_error_line
 
 
 def personalize(*args):
-    return subprocess.run([sys.executable, "-m", "lipsynth.cli", "personalize", *map(str, args)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120)
-
-
-def one_error_line(r):
-    lines = [l for l in r.stderr.strip().splitlines() if l.startswith("lipsynth: error")]
-    assert r.returncode == 2 and len(lines) == 1, r.stderr
-    return lines[0]
+    cmd = [sys.executable, "-m", "lipsynth.cli", "personalize"] + [str(a) for a in args]
+    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
 
 
 def test_too_short_footage_says_how_much_is_needed(tmp_path):
