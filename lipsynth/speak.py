@@ -29,6 +29,7 @@ Examples
 from __future__ import annotations
 
 import argparse
+import copy
 import logging
 import shutil
 import tempfile
@@ -161,6 +162,22 @@ def choose_speaker(p: Params, model: str, target: str) -> tuple[dict | None, dic
     return (speaker if same else None), dict(identity_distance=round(dist, 4), same_speaker=bool(same))
 
 
+def with_texture_window(params: Params, window: dict) -> Params:
+    """A copy of ``params`` whose frontalize stage makes ``window`` (a store's ``texture_window``:
+    x0, y0 mm, mm_per_px, size px) — the model's candidate bank and the target's textures must match."""
+    p = copy.deepcopy(params)
+    side = window["size"] * window["mm_per_px"]
+    p.frontalize.texture_size = int(window["size"])
+    p.frontalize.texture_x_mm = [window["x0"], window["x0"] + side]
+    p.frontalize.texture_y_mm = [window["y0"], window["y0"] + side]
+    return p
+
+
+def same_window(a: dict, b: dict) -> bool:
+    """Do two texture windows cover the same mm with the same pixels (up to float rounding)?"""
+    return a["size"] == b["size"] and all(abs(a[k] - b[k]) <= 1e-9 * max(1.0, abs(a[k])) for k in ("x0", "y0", "mm_per_px"))
+
+
 def speak(audio: str, target: str, out: str, params: Params, model: str | None = None, retime: bool = True,
           cache: Path | None = None, diagnostic: bool = False, emotion=None) -> dict:
     """Write ``out`` (MP4): the speaker of ``target`` saying ``audio``.
@@ -184,7 +201,9 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     p = landmarked_target(Path(target), params, cache)
     speaker, report = choose_speaker(p, model, target)
     report["audio_domain"] = domain
-    p = preprocess_target(Path(target), params, cache, shape3d=None if speaker is None else speaker["shape3d"])
+    if speaker is not None and speaker["bank"] is not None:     # frontalize as the model's bank was: same window
+        p = with_texture_window(p, open_group(speaker["bank"]).attrs["texture_window"])
+    p = preprocess_target(Path(target), p, cache, shape3d=None if speaker is None else speaker["shape3d"])
     report["fit"] = fit_report(p, target)
     p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, model
     p.synthesize.emotion = emotion
@@ -193,7 +212,7 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     window = stores["frontalize"].attrs["texture_window"]
     if speaker is not None and speaker["bank"] is not None:
         bank = open_group(speaker["bank"])
-        if bank.attrs["texture_window"] == window:
+        if same_window(bank.attrs["texture_window"], window):
             stores["bank"] = bank
         else:
             log.warning("the model's candidate bank has another texture window (%s) than these params (%s): "

@@ -23,7 +23,7 @@ from pipeline.params import Params, as_dict
 log = logging.getLogger("lipsynth.target")
 
 PREPROCESS = ("ingest", "landmarks", "frontalize")
-CACHE_FORMAT = 3          # bump when the preprocessing code changes what it stores
+CACHE_FORMAT = 4          # bump when the preprocessing code changes what it stores
 
 
 def default_cache() -> Path:
@@ -39,11 +39,23 @@ def content_hash(path: Path, block: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+def settings_of(params: Params, stages) -> dict:
+    return {k: {kk: vv for kk, vv in as_dict(getattr(params, k)).items() if kk != "out"} for k in stages}
+
+
 def cache_key(video: Path, params: Params) -> str:
-    """Identity of a preprocessed target: the file's content and the preprocessing settings."""
-    settings = {k: {kk: vv for kk, vv in as_dict(getattr(params, k)).items() if kk != "out"} for k in PREPROCESS}
-    ident = {"content": content_hash(video), "settings": settings, "format": CACHE_FORMAT}
+    """Identity of a preprocessed target's folder: the file's content and the ingest/landmarks settings
+    (frontalize stores inside it are named by their own settings: ``frontalize_name``)."""
+    ident = {"content": content_hash(video), "settings": settings_of(params, PREPROCESS[:2]), "format": CACHE_FORMAT}
     return hashlib.sha1(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def frontalize_name(params: Params, shape3d: np.ndarray | None) -> str:
+    """``frontalize-<hash>.zarr``: one store per frontalize settings (texture window) and 3D face model."""
+    h = hashlib.sha1(json.dumps(settings_of(params, ("frontalize",)), sort_keys=True, default=str).encode())
+    if shape3d is not None:
+        h.update(np.ascontiguousarray(shape3d, np.float32).tobytes())
+    return f"frontalize-{h.hexdigest()[:12]}.zarr"
 
 
 def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndarray | None = None) -> Params:
@@ -58,9 +70,7 @@ def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndar
     its own frontalize store in the cache folder.
     """
     p = landmarked_target(video, params, cache)
-    if shape3d is not None:
-        tag = hashlib.sha1(np.ascontiguousarray(shape3d, np.float32).tobytes()).hexdigest()[:12]
-        p.frontalize.out = str(Path(p.frontalize.out).with_name(f"frontalize-{tag}.zarr"))
+    p.frontalize.out = str(Path(p.frontalize.out).with_name(frontalize_name(p, shape3d)))
     if Path(p.frontalize.out).is_dir():
         return p
     from stages.frontalize import frontalize

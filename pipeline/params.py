@@ -70,7 +70,8 @@ class Cluster:
 @dataclass
 class Ingest:
     out: str = "store/ingest.zarr"
-    crop_size: int = 224
+    crop_size: int | str = "auto"
+    max_crop_size: int = 448
     crop_scale: float = 2.0
     crop_shift_down: float = 0.3
     detect_samples: int = 8
@@ -83,6 +84,8 @@ class Ingest:
     shard_frames: int = 256
     shard_seconds: int = 10
     chunk_frames: int = 8
+
+    AUTO = ("crop_size",)            # an int, or "auto": follow the face's size in the footage
 
 
 @dataclass
@@ -108,7 +111,8 @@ class Frontalize:
     grid_y_mm: list = field(default_factory=lambda: [-80, 220])
     data_weight: float = 100.0
     boundary_weight: float = 100.0
-    texture_size: int = 128
+    texture_size: int | str = "auto"
+    max_texture_size: int = 256
     texture_x_mm: list = field(default_factory=lambda: [-80, 80])
     texture_y_mm: list = field(default_factory=lambda: [20, 180])
     max_reprojection: float = 0.15
@@ -118,6 +122,8 @@ class Frontalize:
     cloth_dilate_px: int = 2
     inpaint_radius: float = 3.0
     chunk_frames: int = 8
+
+    AUTO = ("texture_size",)         # an int, or "auto": as fine as the face in the stored crops
 
 
 @dataclass
@@ -191,6 +197,7 @@ class Brand:
     min_state_frames: float = 25.0
     decode: str = "viterbi"
     baseline: bool = True
+    train_seconds: float | None = None
     seed: int = 0
 
     CHOICES = {"features": ("paper", "mfcc", "whisper"), "decode": ("viterbi", "posterior")}
@@ -392,6 +399,8 @@ def check(section, name: str, where: str = "params") -> None:
             continue
         if not _type_ok(value, hints[f.name]):
             raise ParameterError(f"{where}: {name}.{f.name}={value!r}: expected {_type_name(hints[f.name])}")
+        if isinstance(value, str) and f.name in getattr(type(section), "AUTO", ()) and value != "auto":
+            raise ParameterError(f"{where}: {name}.{f.name}={value!r}: expected an int or auto")
         choices = getattr(type(section), "CHOICES", {}).get(f.name)
         if choices and value not in choices:
             raise ParameterError(f"{where}: {name}.{f.name}={value!r}: choose one of {', '.join(choices)}")

@@ -24,12 +24,13 @@ def test_the_shipped_params_file_equals_the_code_defaults():
 
 def test_sections_are_typed_attributes():
     p = load_params(ROOT / "params.yaml")
-    assert p.ingest.crop_size == 224 and p.synthesize.teeth_upper is None and p.train.baselines is True
+    assert p.ingest.crop_size == "auto" and p.synthesize.teeth_upper is None and p.train.baselines is True
 
 
 @pytest.mark.parametrize("edit, message", [
     (lambda t: t["ingest"].update(crop_sise=128), r"unknown key ingest\.crop_sise"),
-    (lambda t: t["ingest"].update(crop_size="big"), r"ingest\.crop_size='big': expected int"),
+    (lambda t: t["ingest"].update(crop_size="big"), r"ingest\.crop_size='big': expected an int or auto"),
+    (lambda t: t["frontalize"].update(texture_size=1.5), r"frontalize\.texture_size=1\.5: expected int or str"),
     (lambda t: t["train"].update(baselines=1), r"train\.baselines=1: expected bool"),
     (lambda t: t["synthesize"].update(teeth_upper=2.5), r"synthesize\.teeth_upper=2\.5: expected int or null"),
     (lambda t: t["synthesize"].update(retarget="sometimes"), r"synthesize\.retarget='sometimes': choose one of"),

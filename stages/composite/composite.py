@@ -111,13 +111,14 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     lm = tgt.flm[j]
     T = synth_rgb.shape[0]
     target_tex = tgt.texture(j)
-    mouth, neck = layer_masks(lm, T, p.feather_px, neck_depth=p.neck_depth)
+    px = T / 128.0                                     # feather and jaw band are given in px at T = 128
+    mouth, neck = layer_masks(lm, T, px * p.feather_px, overlap=3.0 * px, neck_depth=p.neck_depth)
     if inpainted is not None:
         neck = neck * (1 - cv2.GaussianBlur(inpainted.astype(np.float32) / 255, (0, 0), 1.5))
     if p.colour_match:
         synth_rgb = colour_match(synth_rgb, target_tex, skin_region(lm, mouth))
     if p.jaw_correction:
-        synth_rgb = jaw_correction(synth_rgb, target_tex, jaw_band(lm, T, p.jaw_band_px))
+        synth_rgb = jaw_correction(synth_rgb, target_tex, jaw_band(lm, T, px * p.jaw_band_px))
     t1 = time.perf_counter()
     shirt = cv2.GaussianBlur(tgt.clothing(j), (0, 0), 1.5)
     alpha = synth_alpha(mouth, neck, shirt)

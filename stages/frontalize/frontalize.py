@@ -77,10 +77,52 @@ def build_surface(shape: np.ndarray, p: Frontalize) -> tuple[Surface, np.ndarray
     return Surface(ext, float(xs[0]), float(ys[0]), step), known
 
 
-def texture_window(p: Frontalize) -> TextureWindow:
+MIN_TEXTURE = 128            #: px: the smallest automatic texture (the former fixed size)
+
+
+def auto_texture_size(iod_crop_px: float, p: Frontalize) -> int:
+    """Texture side N (px, a multiple of 16) whose pixels are as fine as the stored crops' (``frontalize.texture_size: auto``).
+
+    Parameters
+    ----------
+    iod_crop_px : float
+        Median outer-eye-corner distance of the face in stored-crop pixels (its IOD_MM = 90 mm).
+    p : Frontalize
+        ``texture_x_mm`` (the window's width in mm) and ``max_texture_size``.
+
+    Returns
+    -------
+    int: width_mm × iod_crop_px / IOD_MM rounded down to 16, within [128, max_texture_size]: a
+    360×288 face keeps 128, a 720×576 one gets about 2× — a texture finer than the crop adds nothing.
+    """
+    if not np.isfinite(iod_crop_px) or iod_crop_px <= 0:
+        return min(MIN_TEXTURE, p.max_texture_size)
+    n = (p.texture_x_mm[1] - p.texture_x_mm[0]) * iod_crop_px / dlib_face.IOD_MM
+    return int(min(max(16 * int(n // 16), MIN_TEXTURE), p.max_texture_size))
+
+
+def crop_interocular(lmg, videos: list[dict], per_video: int = 50) -> float:
+    """Median outer-eye-corner distance in stored-crop pixels over up to ``per_video`` valid frames of each
+    video (landmarks are in source pixels; a video's crop stores ``crop[2]`` source px per crop px)."""
+    dists = []
+    for v in videos:
+        if v.get("excluded") or not v["n_frames"]:
+            continue
+        pick = np.unique(np.linspace(v["first_frame"], v["first_frame"] + v["n_frames"] - 1, per_video).round().astype(int))
+        ok = np.asarray(lmg["valid"].get_orthogonal_selection((pick,)))
+        if ok.any():
+            lm = np.asarray(lmg["landmarks"].get_orthogonal_selection((pick[ok],)), np.float64)
+            dists += list(dlib_face.interocular(lm) / float(v["crop"][2]))
+    return float(np.median(dists)) if dists else float("nan")
+
+
+def texture_window(p: Frontalize, size: int | None = None) -> TextureWindow:
+    """The frontal texture window: ``texture_x_mm`` × ``texture_y_mm`` from its top-left corner, ``size``
+    (default ``texture_size``, which must then be an int) pixels square."""
+    size = int(p.texture_size if size is None else size)
     x0, x1 = p.texture_x_mm
     y0 = p.texture_y_mm[0]
-    return TextureWindow(float(x0), float(y0), (x1 - x0) / p.texture_size, int(p.texture_size))
+    return TextureWindow(float(x0), float(y0), (x1 - x0) / size, size)
 
 
 # ---------------------------------------------------------------- execution: per shard
@@ -168,7 +210,13 @@ def run(params: Params, ingest_path: str, landmarks_path: str, out: str, shape3d
         shape, report = np.asarray(shape3d, np.float64), dict(method="given")
         log.info("3D model: given (the model folder's corpus model); solving the pose of every frame")
     surface, known = build_surface(shape, p)
-    win = texture_window(p)
+    if p.texture_size == "auto":
+        iod = crop_interocular(lmg, videos)
+        win = texture_window(p, auto_texture_size(iod, p))
+        log.info("texture %d px (frontalize.texture_size: auto — the face's eye corners are %.0f px apart in the "
+                 "stored crops, at most frontalize.max_texture_size=%d)", win.size, iod, p.max_texture_size)
+    else:
+        win = texture_window(p)
     points = win.grid_points(surface)
     T = win.size
     with atomic_output(out) as tmp, client_for(params.cluster) as client:

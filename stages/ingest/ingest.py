@@ -28,6 +28,7 @@ Run: ``python -m stages.ingest.ingest`` (reads ``data``, ``ingest`` and ``cluste
 """
 from __future__ import annotations
 
+import dataclasses
 import glob
 import hashlib
 import logging
@@ -117,6 +118,47 @@ def crop_box(face_boxes: np.ndarray, crop_scale: float, shift_down: float) -> tu
     cy = (b[1] + b[3]) / 2 + shift_down * w
     side = crop_scale * w
     return float(cx - side / 2), float(cy - side / 2), float(side)
+
+
+MIN_CROP = 224              #: px: the smallest automatic crop (the former fixed size)
+
+
+def auto_crop_size(face_widths_px, crop_scale: float, max_size: int) -> int:
+    """Crop side S (px, a multiple of 16) that keeps the footage's own resolution (``ingest.crop_size: auto``).
+
+    Parameters
+    ----------
+    face_widths_px : array-like, shape (K,)
+        Widths of detected face boxes, source pixels.
+    crop_scale : float
+        Crop side / face-box width (``ingest.crop_scale``).
+    max_size : int
+        Upper bound (``ingest.max_crop_size``): large faces are stored downsampled to it.
+
+    Returns
+    -------
+    int: ``crop_scale`` × the median face width, rounded down to 16 (never finer than the footage),
+    within [224, max_size] — a face in 360×288 footage gets 224–240, a 720p face about 2× that
+    instead of being halved.
+    """
+    w = np.asarray(face_widths_px, float)
+    if not len(w):
+        return min(MIN_CROP, max_size)
+    side = crop_scale * float(np.median(w))
+    return int(min(max(16 * int(side // 16), MIN_CROP), max_size))
+
+
+def sampled_face_widths(paths: list[str], p: Ingest, n_videos: int = 2, n_frames: int = 3) -> list[float]:
+    """Face-box widths (source px) on a few key frames of up to ``n_videos`` evenly spaced videos;
+    videos without a detectable face are passed over here (ingest names them later)."""
+    widths = []
+    for i in np.unique(np.linspace(0, len(paths) - 1, min(n_videos, len(paths))).round().astype(int)):
+        try:
+            boxes = find_face_boxes(paths[i], min(n_frames, p.detect_samples), p.min_face_px, p.detect_upsample)
+        except BadInputError:
+            continue
+        widths += list(boxes[:, 2] - boxes[:, 0])
+    return widths
 
 
 def resample_plane(plane: np.ndarray, scale: float, off_x: float, off_y: float, size: int) -> np.ndarray:
@@ -216,7 +258,8 @@ def decode_video(path: str, p: Ingest, require_audio: bool = True) -> dict:
     info = media.probe(path)
     boxes = find_face_boxes(path, p.detect_samples, p.min_face_px, p.detect_upsample)
     box = crop_box(boxes, p.crop_scale, p.crop_shift_down)
-    size = p.crop_size
+    size = auto_crop_size(boxes[:, 2] - boxes[:, 0], p.crop_scale, p.max_crop_size) if p.crop_size == "auto" \
+        else p.crop_size                # run() resolves auto once for the whole store; alone, a video sizes itself
     times, crops = [], []
     for t, yuv in media.iter_frames(path, fmt="yuv"):
         times.append(t)
@@ -293,8 +336,10 @@ def run(params: Params, out: str, require_audio: bool = True) -> list[dict]:
     """Ingest ``data.videos`` into ``out``. Training videos need their audio (``require_audio``);
     a target video that only receives new speech (``lipsynth speak``) does not."""
     data, p = params.data, params.ingest
-    if p.crop_size % 4:
+    if isinstance(p.crop_size, int) and p.crop_size % 4:
         raise ParameterError(f"ingest.crop_size={p.crop_size}: must be a multiple of 4 (I420 storage)")
+    if p.max_crop_size < MIN_CROP or p.max_crop_size % 16:
+        raise ParameterError(f"ingest.max_crop_size={p.max_crop_size}: must be a multiple of 16, at least {MIN_CROP}")
     paths = list_videos(data.videos)
     names = [video_name(q) for q in paths]
     splits = (time_split(names, data.val_fraction) if data.split == "time"
@@ -310,6 +355,12 @@ def run(params: Params, out: str, require_audio: bool = True) -> list[dict]:
             log.warning("skipping %s", exc)
     if not entries:
         raise LipsynthError(f"{data.videos}: no usable videos")
+    if p.crop_size == "auto":
+        widths = sampled_face_widths([e["path"] for e in entries], p)
+        p = dataclasses.replace(p, crop_size=auto_crop_size(widths, p.crop_scale, p.max_crop_size))
+        log.info("crop size %d px (ingest.crop_size: auto — %.2f × the median face width %.0f px of %d detections, "
+                 "at most ingest.max_crop_size=%d)", p.crop_size, p.crop_scale, float(np.median(widths)) if widths else
+                 float("nan"), len(widths), p.max_crop_size)
     S, sh = p.crop_size, p.shard_frames
     sh_audio, sh_mfcc = 16000 * p.shard_seconds, 100 * p.shard_seconds
     n_frames, n_samples, n_mfcc = layout(entries, sh, sh_audio, sh_mfcc)

@@ -48,6 +48,7 @@ from stages.synthesize import retime as rt
 from stages.synthesize import texture as tx
 
 log = logging.getLogger("lipsynth.synthesize")
+REFERENCE_TEXTURE = 128.0     #: texture px the px-valued params (teeth σ, feathers, unsharp σ) are given at
 
 
 def find_video(videos: list[dict], target: str) -> dict | None:
@@ -224,10 +225,12 @@ def run(params: Params, out: str, stores: dict, entry: dict) -> dict:
     yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
     upper, lower = tx.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
                                          s_max=p.teeth_s_max, v_min=p.teeth_v_min, upper=to_pool(up), lower=to_pool(lo))
-    proxies = tx.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower, sigmas=tuple(p.teeth_sigmas),
-                                     strength=p.teeth_strength, feather_px=p.teeth_feather_px)
-    detail = dict(s_max=p.teeth_s_max, v_min=p.teeth_v_min, feather_px=p.teeth_feather_px,
-                  unsharp_sigma=p.unsharp_sigma, unsharp_amount=p.unsharp_amount)
+    px = pool_tex.shape[2] / REFERENCE_TEXTURE        # the px params are given at T = 128: same mm at any texture size
+    proxies = tx.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower,
+                                     sigmas=tuple(px * s for s in p.teeth_sigmas), strength=p.teeth_strength,
+                                     feather_px=px * p.teeth_feather_px)
+    detail = dict(s_max=p.teeth_s_max, v_min=p.teeth_v_min, feather_px=px * p.teeth_feather_px,
+                  unsharp_sigma=px * p.unsharp_sigma, unsharp_amount=p.unsharp_amount)
     log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
              " (given)" if up is not None or lo is not None else " (automatic)")
     T = pool_tex.shape[2]

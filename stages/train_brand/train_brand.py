@@ -38,6 +38,7 @@ from pipeline.models.model_folder import save_puppet
 from pipeline.params import Params, as_dict
 from pipeline.io.runner import stage_main, write_timing
 from pipeline.models.speaker_bank import export_speaker
+from pipeline.models.training_budget import seeded_subset
 from pipeline.io.store import atomic_output
 from stages.train_brand import entropic
 from stages.train_brand.observations import FACE_POINTS, LIP_INDEX, face_pca, load_videos, observations, segments
@@ -131,6 +132,10 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
     basis, attrs = pc["basis"], pc["attrs"]
     train = [v for v in videos if v["split"] == "train"]
     val = [v for v in videos if v["split"] == "val"]
+    if b.train_seconds:
+        train = [train[i] for i in seeded_subset([len(v["samples"]) / 16000 for v in train], b.train_seconds, b.seed)]
+        log.info("brand.train_seconds=%g: %d of the training videos (%.1f s), seeded", b.train_seconds, len(train),
+                 sum(len(v["samples"]) for v in train) / 16000)
     if not train or not val:
         raise LipsynthError(f"{pca_path}: Voice Puppetry needs training and validation videos "
                             f"({len(train)} and {len(val)})")
