@@ -14,7 +14,8 @@ relative to it.
 Phases: prediction (audio → MFCC → LSTM → shapes; includes torch's first-call set-up),
 retiming, candidate_pool (reading the pool's textures), candidate_search, weighted_median,
 teeth, decode (target frames), retime_flow (half-way frames for repeats), flow (colour match +
-jaw-correction optical flow), render_back, blend, encode. Phase figures are thread time per
+jaw-correction optical flow), render_back, blend, check (the self-check: dlib re-reads every
+output mouth), encode. Phase figures are thread time per
 frame (texture synthesis and compositing run 2 threads, so they add up to more than the wall
 time); "total" is wall time. Medians over repeats; the machine is noisy. The paper: 0.45
 s/frame on one core.
@@ -43,7 +44,7 @@ from stages.synthesize import synthesize  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weighted_median", "teeth",
-          "decode", "retime_flow", "flow", "render_back", "blend", "self_check", "encode"]
+          "decode", "retime_flow", "flow", "render_back", "blend", "check", "encode"]
 
 
 def long_speech(out: Path) -> Path:
