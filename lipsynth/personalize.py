@@ -15,7 +15,9 @@
    opening correlation) and the time taken, printed.
 
 The footage must show one person's face, with their speech. Too-short footage, footage without
-audio or without a face stop with one line naming the file.
+audio or without a face stop with one line naming the file; so do footage in which another person
+appears (a segment or video whose face is not the footage's person: ``lipsynth.footage_check``) and
+footage whose face is tracked for less than 1.5 segments in all (each file's usable seconds listed).
 """
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ from pathlib import Path
 
 import yaml
 
+from lipsynth import footage_check
 from pipeline.errors import LipsynthError, ParameterError
 from pipeline.io.runner import run_main, setup_logging
 from pipeline.io.segments import cut_video
@@ -93,6 +96,9 @@ def run(args) -> dict:
         code = importlib.import_module(module).main(["--params", str(pfile)])
         if code:
             raise LipsynthError(f"personalize: the {stage} stage failed (params {pfile}); see the line above")
+        if stage == "landmarks":            # one person, enough tracked face — before the long stages
+            footage_check.check(params["ingest"]["out"], params["landmarks"]["out"],
+                                params["speak"]["same_speaker_distance"], min_seconds=1.5 * (args.segment_seconds or 10.0))
         times[stage] = time.perf_counter() - s0
     metrics = json.loads((work / "metrics.json").read_text())
     val, mean = metrics["val"], metrics["baseline_mean_shape"]
