@@ -55,33 +55,21 @@ def verdict(usable_s: dict[str, float], people: dict[str, np.ndarray], same_pers
     return dist
 
 
-class _VideoCrops:
-    """Crops of one video, indexed from its first frame."""
-
-    def __init__(self, crops, first: int):
-        self.crops, self.first = crops, first
-
-    def __getitem__(self, i):
-        return self.crops[self.first + int(i)]
-
-
 def check(ingest_path: str, landmarks_path: str, same_person: float, min_seconds: float = MIN_USABLE_SECONDS,
           frames_per_video: int = 8) -> dict[str, float]:
     """Read the stores, log each video's tracked seconds and run ``verdict``."""
     from pipeline.io.store import open_group
     src, lmg = open_group(ingest_path), open_group(landmarks_path)
+    landmarks, valid = np.asarray(lmg["landmarks"][...]), np.asarray(lmg["valid"][...])
     usable, people = {}, {}
     for v in lmg.attrs["videos"]:
         f0, n = v["first_frame"], v["n_frames"]
-        if not n:
-            usable[v["path"]] = 0.0
+        mine = np.zeros_like(valid)                       # this video's tracked frames, store-wide indices
+        mine[f0:f0 + n] = valid[f0:f0 + n]
+        usable[v["path"]] = float(mine.sum() / v["fps"]) if n else 0.0
+        if v.get("excluded") or not mine.any():
             continue
-        valid = np.asarray(lmg["valid"][f0:f0 + n])
-        usable[v["path"]] = float(valid.sum() / v["fps"])
-        if v.get("excluded") or not valid.any():
-            continue
-        d = identity.video_descriptor(_VideoCrops(src["crops"], f0), np.asarray(lmg["landmarks"][f0:f0 + n]), valid,
-                                      v["crop"], frames_per_video)
+        d = identity.video_descriptor(src["crops"], landmarks, mine, v["crop"], frames_per_video)
         if d is not None:
             people[v["path"]] = identity.identity(d)
     dist = verdict(usable, people, same_person, min_seconds)
