@@ -1,4 +1,4 @@
-"""Speed of audio → video (synthesize + composite), ms/frame per phase, at GRID size and at 720p.
+"""Speed of audio → video (synthesize + composite), ms/frame per phase, at GRID size, 720p and 1080p.
 
     python bench/synthesize.py --repeats 3
 
@@ -6,7 +6,9 @@ GRID size: a validation clip of the preprocessed GRID corpus (``--grid-params``,
 runs/grid_s1/params.yaml) as target, 32 s of radio speech (../shared/data/hdtf) as audio,
 re-timing on (the 3 s target is extended by ping-pong). 720p: ``obama_08.mp4`` as target
 (preprocessed once into bench/results/cache with a 448 px crop and 192 px texture, as
-``lipsynth speak`` would), the same kind of audio. The model is the GRID model. Preprocessing
+``lipsynth speak`` would), the same kind of audio. 1080p: the same clip upscaled to 1920×1080
+(bicubic, once, into bench/results/synthesize; same crop and texture sizes — the face covers
+2.25× the pixels). The model is the GRID model. Preprocessing
 of the target is not timed (it is cached); model loading is (in "prediction"). Run it from the
 GRID corpus's project root: its params' store paths and the video paths its stores record are
 relative to it.
@@ -64,6 +66,20 @@ def long_speech(out: Path) -> Path:
     return out
 
 
+def upscaled(video: Path, out: Path, size: tuple[int, int]) -> Path:
+    """``video`` resized to ``size`` = (width, height) (bicubic), with its audio, written once."""
+    import cv2
+    from pipeline.io import media
+    if out.exists():
+        return out
+    audio, _ = media.read_audio(video, 48000)
+    tmp = out.with_name(out.stem + ".tmp.mp4")
+    media.write_video(tmp, (cv2.resize(rgb, size, interpolation=cv2.INTER_CUBIC) for _, rgb in media.iter_frames(video)),
+                      media.probe(video).fps, audio, 48000)
+    tmp.replace(out)
+    return out
+
+
 def one_run(p: Params, stores: dict, entry: dict, video: str, work: Path) -> tuple[dict, float, int]:
     """Synthesize + composite ``entry`` (source video ``video``) saying ``p.synthesize.audio``."""
     store = work / "synthesize.zarr"
@@ -91,7 +107,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--grid-params", default="runs/grid_s1/params.yaml", help="params of the preprocessed GRID corpus")
     ap.add_argument("--audio", default=None, help="speech file (default: 32 s of radio speech, see long_speech)")
-    ap.add_argument("--only", choices=["grid", "720p"], default=None)
+    ap.add_argument("--only", choices=["grid", "720p", "1080p"], default=None)
     a = ap.parse_args()
     setup_logging()
     import logging
@@ -115,8 +131,12 @@ def main() -> None:
         report(f"GRID {entry['width']}×{entry['height']} (target {entry['name']}, pool {p.synthesize.pool_max} "
                f"frames)", [one_run(p, stores, entry, entry["path"], work) for _ in range(a.repeats)])
 
-    if a.only in (None, "720p"):
+    for size in ("720p", "1080p"):
+        if a.only not in (None, size):
+            continue
         target = SHARED / "obama" / "obama_08.mp4"
+        if size == "1080p":
+            target = upscaled(target, work / "obama_08_1080p.mp4", (1920, 1080))
         base = copy.deepcopy(project)
         base.ingest.crop_size = 448
         base.frontalize.texture_size = 192
@@ -126,9 +146,8 @@ def main() -> None:
         p.synthesize = dataclasses.replace(p.synthesize, audio=a.audio, target=str(target),
                                            model=load_params(a.grid_params).train.out)
         p.composite = dataclasses.replace(p.composite, diagnostic=False)
-        report(f"720p {entry['width']}×{entry['height']} (target obama_08, its own {entry['n_frames']} frames)",
+        report(f"{size} {entry['width']}×{entry['height']} (target {target.stem}, its own {entry['n_frames']} frames)",
                [one_run(p, stores, entry, str(target), work) for _ in range(a.repeats)])
-
 
 if __name__ == "__main__":
     main()

@@ -45,6 +45,7 @@ from pipeline.face.dlib_face import IOD_MM, LIP_POINTS, interocular
 from pipeline.face.geometry import rotation, rotation_angle_deg
 from pipeline.models.model_folder import load_speaker
 from pipeline.models.mouth_prediction import check_emotion, check_model_folder, load_audio
+from pipeline.io.parallel import SharedCluster
 from pipeline.io.store import open_group
 from pipeline.params import Params, load_params
 from pipeline.io.runner import run_main, setup_logging
@@ -198,12 +199,14 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     check_emotion(model, emotion)              # and an emotion the model cannot take
     domain = audio_domain_check(samples, model, params, audio)
     cache = cache or default_cache()
-    p = landmarked_target(Path(target), params, cache)
-    speaker, report = choose_speaker(p, model, target)
-    report["audio_domain"] = domain
-    if speaker is not None and speaker["bank"] is not None:     # frontalize as the model's bank was: same window
-        p = with_texture_window(p, open_group(speaker["bank"]).attrs["texture_window"])
-    p = preprocess_target(Path(target), p, cache, shape3d=None if speaker is None else speaker["shape3d"])
+    with SharedCluster(params.cluster) as cluster:      # one cluster for all preprocessing, if any is needed
+        p = landmarked_target(Path(target), params, cache, cluster)
+        speaker, report = choose_speaker(p, model, target)
+        report["audio_domain"] = domain
+        if speaker is not None and speaker["bank"] is not None:     # frontalize as the model's bank was: same window
+            p = with_texture_window(p, open_group(speaker["bank"]).attrs["texture_window"])
+        p = preprocess_target(Path(target), p, cache, shape3d=None if speaker is None else speaker["shape3d"],
+                              shared=cluster)
     report["fit"] = fit_report(p, target)
     p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, model
     p.synthesize.emotion = emotion

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.parallel import client_for
+from pipeline.io.parallel import SharedCluster, client_for
 from pipeline.params import Params, as_dict
 
 log = logging.getLogger("lipsynth.target")
@@ -58,7 +58,8 @@ def frontalize_name(params: Params, shape3d: np.ndarray | None) -> str:
     return f"frontalize-{h.hexdigest()[:12]}.zarr"
 
 
-def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndarray | None = None) -> Params:
+def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndarray | None = None,
+                      shared: SharedCluster | None = None) -> Params:
     """Params whose ingest/landmarks/frontalize outputs hold ``video`` alone (computed once, then cached).
 
     Returns a copy of ``params`` with ``data.videos`` = [video] and each preprocessing stage's
@@ -68,22 +69,25 @@ def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndar
     ``shape3d`` (68, 3) mm: frontalize with this 3D face model (a model folder's corpus model,
     for a target of the same speaker) instead of one fitted to the video alone; each model gets
     its own frontalize store in the cache folder.
+
+    ``shared``: run the stages on this cluster (one for a whole ``speak``) instead of a cluster of
+    their own.
     """
-    p = landmarked_target(video, params, cache)
+    p = landmarked_target(video, params, cache, shared)
     p.frontalize.out = str(Path(p.frontalize.out).with_name(frontalize_name(p, shape3d)))
     if Path(p.frontalize.out).is_dir():
         return p
     from stages.frontalize import frontalize
     log.info("target %s: frontalizing with %s", video, "the model's 3D face" if shape3d is not None else
              "its own 3D face model")
-    with client_for(p.cluster) as client:
+    with (shared.client() if shared else client_for(p.cluster)) as client:
         run = copy.deepcopy(p)
         run.cluster.address = client.scheduler.address
         frontalize.run(run, p.ingest.out, p.landmarks.out, p.frontalize.out, shape3d=shape3d)
     return p
 
 
-def landmarked_target(video: Path, params: Params, cache: Path) -> Params:
+def landmarked_target(video: Path, params: Params, cache: Path, shared: SharedCluster | None = None) -> Params:
     """Like ``preprocess_target`` but only ingest and landmarks are guaranteed to exist."""
     from stages.ingest import ingest
     from stages.landmarks import landmarks
@@ -97,7 +101,7 @@ def landmarked_target(video: Path, params: Params, cache: Path) -> Params:
         return p
     log.info("target %s: preprocessing into %s (ingest → landmarks)", video, folder)
     run = copy.deepcopy(p)
-    with client_for(p.cluster) as client:          # one cluster for both stages
+    with (shared.client() if shared else client_for(p.cluster)) as client:      # one cluster for both stages
         run.cluster.address = client.scheduler.address
         ingest.run(run, p.ingest.out, require_audio=False)       # the new speech replaces its audio
         landmarks.run(run, p.ingest.out, p.landmarks.out)

@@ -65,3 +65,35 @@ def test_frontal_landmarks_invert_projection(scene, face3d):
     err = np.linalg.norm(back - xy, axis=1)
     assert err[27:].max() < 0.05          # nose, eyes, mouth land back on their model points
     assert np.median(err[:27]) < 0.5      # jaw and brows, on the hull rim where rays graze: close
+
+
+def test_surface_slopes_are_those_of_its_bilinear_depth(scene):
+    """z_slopes gives z's own values and its finite-difference slopes inside a patch, and 0 across
+    the border where the depth continues flat (a wrong slope would send Newton astray)."""
+    surface, _ = scene
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(-100, 100, 500), rng.uniform(-70, 210, 500)
+    z, zx, zy = surface.z_slopes(x, y)
+    np.testing.assert_allclose(z, surface.z(x, y), atol=1e-9)
+    h = 1e-4                                           # inside one 2-mm patch for almost every point
+    fdx = (surface.z(x + h, y) - surface.z(x - h, y)) / (2 * h)
+    fdy = (surface.z(x, y + h) - surface.z(x, y - h)) / (2 * h)
+    assert np.mean(np.abs(zx - fdx) < 1e-5) > 0.99 and np.mean(np.abs(zy - fdy) < 1e-5) > 0.99
+    z, zx, zy = surface.z_slopes(np.array([-500.0, 0.0]), np.array([0.0, 900.0]))
+    assert zx[0] == 0 and zy[1] == 0
+    assert z[0] == surface.z(np.array([-500.0]), np.array([0.0]))[0]
+
+
+def test_frontal_landmarks_converge_where_a_few_iterations_would_not(scene):
+    """Dense rays from a rough (affine) start, as the render-back map solves them: every ray
+    that meets the surface ends on it to a thousandth of a pixel."""
+    surface, _ = scene
+    K = intrinsics(320, 400, 1.5)
+    rvec, tvec = np.radians([10.0, -20.0, 6.0]), np.array([0.0, -40.0, 650.0])
+    gx, gy = np.meshgrid(np.linspace(-50, 50, 40), np.linspace(0, 130, 40))
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    pixels = project(np.column_stack([xy, surface.z(xy[:, 0], xy[:, 1])]), rvec, tvec, K)
+    start = xy + np.random.default_rng(1).normal(0, 8, xy.shape)
+    back = frontal_landmarks(pixels, start, surface, rvec, tvec, K, iterations=8)
+    hit = project(np.column_stack([back, surface.z(back[:, 0], back[:, 1])]), rvec, tvec, K)
+    assert np.percentile(np.linalg.norm(hit - pixels, axis=1), 99) < 1e-3

@@ -118,3 +118,31 @@ def run_tasks(client, fn, items: list, desc: str, unit: str = "task", weights: l
             client.cancel(futures)
             raise
     return results
+
+
+class SharedCluster:
+    """One cluster for several stage runs of an application (``lipsynth speak``'s preprocessing).
+
+    ``client()`` gives a Client on it — the first call starts the LocalCluster (or connects to
+    ``cluster.address``), later calls reuse it, so workers start and import the stages' code
+    once; nothing starts when nothing needs computing. Use as a context manager: the cluster
+    closes on exit.
+    """
+
+    def __init__(self, cluster):
+        self.cluster = cluster
+        self._stack = contextlib.ExitStack()
+        self._client = None
+
+    def __enter__(self) -> "SharedCluster":
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        self._stack.close()
+        return False
+
+    @contextlib.contextmanager
+    def client(self):
+        if self._client is None:
+            self._client = self._stack.enter_context(client_for(self.cluster))
+        yield self._client

@@ -31,6 +31,7 @@ from pipeline.face.geometry import intrinsics
 from pipeline.video.repeats import halfway_frame, repeat_partners
 from pipeline.params import Composite, Params
 from pipeline.io.runner import stage_main, write_timing
+from pipeline.io.threads import opencv_threads
 from pipeline.io.store import i420_to_rgb, open_group
 from stages.composite.layers import (colour_match, jaw_band, jaw_correction, layer_masks, pyramid_blend, skin_region,
                                      synth_alpha)
@@ -55,7 +56,9 @@ class Target:
         g = self.fr.attrs["grid"]
         self.surface = Surface(np.asarray(self.fr["model/depth"][...], np.float64), g["x0"], g["y0"], g["step"])
         self.window = TextureWindow(**self.fr.attrs["texture_window"])
-        self.points = np.asarray(self.fr["model/texture_points"][...], np.float64)
+        points = np.asarray(self.fr["model/texture_points"][...], np.float64)      # (T, T, 3) mm
+        keep = np.unique(np.r_[0:len(points):4, len(points) - 1])
+        self.outline_points = points[keep][:, keep]    # every 4th texture point and the border: the footprint
         f0, n = self.video["first_frame"], self.video["n_frames"]
         self.pose = np.asarray(self.fr["pose"][f0:f0 + n], np.float64)
         self.pose_ok = np.asarray(self.fr["pose_valid"][f0:f0 + n])
@@ -124,7 +127,7 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     alpha = synth_alpha(mouth, neck, shirt)
     rvec, tvec = tgt.pose[j, :3], tgt.pose[j, 3:]
     # the blend box: the texture's footprint plus the reach of the coarsest pyramid level
-    x0, y0, x1, y1 = texture_footprint(tgt.points, rvec, tvec, tgt.K, frame.shape, margin=2 ** p.pyramid_levels)
+    x0, y0, x1, y1 = texture_footprint(tgt.outline_points, rvec, tvec, tgt.K, frame.shape, margin=2 ** p.pyramid_levels)
     if x1 <= x0 or y1 <= y0:
         return frame
     mu, mv = inverse_map((x0, y0, x1, y1), tgt.surface, tgt.window, rvec, tvec, tgt.K)
@@ -134,9 +137,9 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     a = rendered[..., 3].astype(np.float32) / 255 * cover
     back = frame[y0:y1, x0:x1]
     if p.sharpen > 0:              # give back the detail the resampling chain took (unsharp mask)
-        rgb = rendered[..., :3].astype(np.float32)
-        rgb += p.sharpen * (rgb - cv2.GaussianBlur(rgb, (0, 0), p.sharpen_sigma))
-        rendered = np.dstack([np.clip(rgb + 0.5, 0, 255).astype(np.uint8), rendered[..., 3]])
+        rgb = np.ascontiguousarray(rendered[..., :3])
+        rgb = cv2.addWeighted(rgb, 1 + p.sharpen, cv2.GaussianBlur(rgb, (0, 0), p.sharpen_sigma), -p.sharpen, 0)
+        rendered = np.dstack([rgb, rendered[..., 3]])
     # outside the layer's support the front image is the target itself, so the pyramid's coarse
     # levels blend the synthesized face with the target only where they actually differ
     support = cv2.dilate((a > 1e-3).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
@@ -212,7 +215,7 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
     try:
         with media.VideoWriter(tmp, tgt.video["fps"], p.crf, p.preset, audio, sr) as w, \
                 (media.VideoWriter(diag_tmp, tgt.video["fps"], p.crf, p.preset, audio, sr)
-                 if diag else _Null()) as dw, ThreadPoolExecutor(p.threads) as pool:
+                 if diag else _Null()) as dw, ThreadPoolExecutor(p.threads) as pool, opencv_threads(1):
             pending: deque = deque()            # submitted, not finished
             ready: deque = deque()              # finished, waiting for the self-check of the frames after them
             ok = np.ones(len(mapping), bool)

@@ -112,14 +112,14 @@ def colour_match(synth_rgb: np.ndarray, target_rgb: np.ndarray, region: np.ndarr
     balance; without this the replaced lower face is a different shade from the rest of the face.
     synth_rgb, target_rgb : (T, T, 3) uint8; region : (T, T) bool → (T, T, 3) uint8.
     """
-    if region.sum() < 50:
+    mask = region.astype(np.uint8)
+    if cv2.countNonZero(mask) < 50:
         return synth_rgb
-    s = cv2.cvtColor(synth_rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
-    t = cv2.cvtColor(target_rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
-    ms, ss = s[region].mean(0), s[region].std(0) + 1e-3
-    mt, st = t[region].mean(0), t[region].std(0) + 1e-3
-    gain = np.clip(st / ss, 0.5, 2.0)
-    out = (s - ms) * gain + mt
+    s = cv2.cvtColor(synth_rgb, cv2.COLOR_RGB2LAB)
+    ms, ss = (v.ravel() for v in cv2.meanStdDev(s, mask=mask))
+    mt, st = (v.ravel() for v in cv2.meanStdDev(cv2.cvtColor(target_rgb, cv2.COLOR_RGB2LAB), mask=mask))
+    gain = np.clip((st + 1e-3) / (ss + 1e-3), 0.5, 2.0)
+    out = s * gain.astype(np.float32) + (mt - ms * gain).astype(np.float32)
     return cv2.cvtColor(np.clip(out + 0.5, 0, 255).astype(np.uint8), cv2.COLOR_LAB2RGB)
 
 

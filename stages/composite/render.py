@@ -43,7 +43,7 @@ def inverse_map(box, surface: Surface, window: TextureWindow, rvec, tvec, K: np.
     corners_px = project(np.column_stack([corners_mm, surface.z(corners_mm[:, 0], corners_mm[:, 1])]), rvec, tvec, K)
     A, _ = cv2.estimateAffine2D(corners_px, corners_mm)
     start = pix @ A[:, :2].T + A[:, 2]
-    xy = frontal_landmarks(pix, start, surface, rvec, tvec, K, iterations=4)
+    xy = frontal_landmarks(pix, start, surface, rvec, tvec, K, iterations=8)
     uv = window.to_pixels(xy).astype(np.float32).reshape(len(ys), len(xs), 2)
     return upsample_grid(uv, step, (y1 - y0, x1 - x0))
 

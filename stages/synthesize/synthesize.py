@@ -43,6 +43,7 @@ from pipeline.face.geometry import euler_degrees
 from pipeline.models.mouth_prediction import load_audio, predict_mouth
 from pipeline.params import Params, Synthesize
 from pipeline.io.runner import stage_main, write_timing
+from pipeline.io.threads import opencv_threads
 from pipeline.io.store import atomic_output, create_group, open_group, take
 from stages.synthesize import retime as rt
 from stages.synthesize import texture as tx
@@ -253,7 +254,7 @@ def run(params: Params, out: str, stores: dict, entry: dict) -> dict:
                              shards=(256, T, T, 3))
         cand = np.zeros((n_out, 68, 2), np.float32)
         sig = np.zeros(n_out, np.float32)
-        with ThreadPoolExecutor(p.threads) as ex:
+        with ThreadPoolExecutor(p.threads) as ex, opencv_threads(1):
             for a in tqdm(range(0, n_out, 256), desc="synthesize", unit="block", dynamic_ncols=True):
                 res = list(ex.map(one, range(a, min(a + 256, n_out))))
                 tex[a:a + len(res)] = np.stack([r[0] for r in res])
