@@ -42,6 +42,28 @@ def test_pyramid_blend_reproduces_its_inputs_where_alpha_is_0_or_1():
     assert np.abs(out[:, 90:] - front[:, 90:]).mean() < 3
 
 
+def test_pyramid_blend_equals_blending_the_two_pyramids():
+    """Burt & Adelson as written — both images decomposed, each level mixed by the alpha pyramid,
+    collapsed — gives the same image as the blend's difference-only decomposition."""
+    rng = np.random.default_rng(1)
+    h, w = 101, 137                                           # odd sizes: pyrUp's dstsize matters
+    front = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
+    back = cv2.GaussianBlur(rng.integers(0, 256, (h, w, 3)).astype(np.uint8), (0, 0), 2)
+    alpha = cv2.GaussianBlur((rng.random((h, w)) > 0.5).astype(np.float32), (0, 0), 4)
+    levels = 4
+    gf, gb, ga = [front.astype(np.float32)], [back.astype(np.float32)], [alpha]
+    for _ in range(levels):
+        gf.append(cv2.pyrDown(gf[-1])); gb.append(cv2.pyrDown(gb[-1])); ga.append(cv2.pyrDown(ga[-1]))
+    out = ga[-1][..., None] * gf[-1] + (1 - ga[-1][..., None]) * gb[-1]
+    for lvl in range(levels - 1, -1, -1):
+        size = (gf[lvl].shape[1], gf[lvl].shape[0])
+        lf = gf[lvl] - cv2.pyrUp(gf[lvl + 1], dstsize=size)
+        lb = gb[lvl] - cv2.pyrUp(gb[lvl + 1], dstsize=size)
+        out = cv2.pyrUp(out, dstsize=size) + ga[lvl][..., None] * lf + (1 - ga[lvl][..., None]) * lb
+    reference = np.clip(out + 0.5, 0, 255).astype(np.uint8)
+    assert np.abs(pyramid_blend(front, back, alpha, levels).astype(int) - reference).max() <= 1
+
+
 def test_layer_alpha_is_continuous_across_the_chin(landmarks_uv):
     mouth, neck = layer_masks(landmarks_uv, 128, feather=2.0)
     no_shirt = np.zeros_like(mouth)

@@ -88,20 +88,24 @@ def jaw_correction(synth_rgb: np.ndarray, target_rgb: np.ndarray, band: np.ndarr
 
 
 def pyramid_blend(front: np.ndarray, back: np.ndarray, alpha: np.ndarray, levels: int = 5) -> np.ndarray:
-    """Laplacian-pyramid blend (Burt & Adelson 1983) of (h, w, 3) uint8 images with (h, w) alpha."""
+    """Laplacian-pyramid blend (Burt & Adelson 1983) of (h, w, 3) uint8 images with (h, w) alpha.
+
+    Per level l the blend is G_l(a)·L_l(front) + (1 − G_l(a))·L_l(back) = L_l(back) + G_l(a)·L_l(front − back):
+    the pyramid is linear, so only the difference is decomposed and ``back`` added after the
+    collapse — half the pyramid work of decomposing both images, the same result.
+    """
     h, w = alpha.shape
     levels = max(1, min(levels, int(np.log2(max(min(h, w), 2))) - 2))
-    f, b, a = front.astype(np.float32), back.astype(np.float32), alpha.astype(np.float32)
-    gf, gb, ga = [f], [b], [a]
+    b = back.astype(np.float32)
+    gd, ga = [front.astype(np.float32) - b], [alpha.astype(np.float32)]
     for _ in range(levels):
-        gf.append(cv2.pyrDown(gf[-1])); gb.append(cv2.pyrDown(gb[-1])); ga.append(cv2.pyrDown(ga[-1]))
-    out = ga[-1][..., None] * gf[-1] + (1 - ga[-1][..., None]) * gb[-1]
+        gd.append(cv2.pyrDown(gd[-1])); ga.append(cv2.pyrDown(ga[-1]))
+    out = ga[-1][..., None] * gd[-1]
     for lvl in range(levels - 1, -1, -1):
-        size = (gf[lvl].shape[1], gf[lvl].shape[0])
-        lf = gf[lvl] - cv2.pyrUp(gf[lvl + 1], dstsize=size)
-        lb = gb[lvl] - cv2.pyrUp(gb[lvl + 1], dstsize=size)
-        out = cv2.pyrUp(out, dstsize=size) + ga[lvl][..., None] * lf + (1 - ga[lvl][..., None]) * lb
-    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+        size = (gd[lvl].shape[1], gd[lvl].shape[0])
+        ld = gd[lvl] - cv2.pyrUp(gd[lvl + 1], dstsize=size)
+        out = cv2.pyrUp(out, dstsize=size) + ga[lvl][..., None] * ld
+    return np.clip(out + b + 0.5, 0, 255).astype(np.uint8)
 
 
 def colour_match(synth_rgb: np.ndarray, target_rgb: np.ndarray, region: np.ndarray) -> np.ndarray:
