@@ -49,9 +49,9 @@ PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weigh
           "decode", "retime_flow", "flow", "render_back", "blend", "check", "encode"]
 
 
-def long_speech(out: Path) -> Path:
+def long_speech(out: Path, seconds: float | None = None) -> Path:
     """The four 8 s radio-speech WAVs of ../shared/data/hdtf joined: 32 s, so fixed costs
-    (model load, reading the pool) weigh as little as in real use."""
+    (model load, reading the pool) weigh as little as in real use; or their first ``seconds``."""
     import wave
     if out.exists():
         return out
@@ -60,9 +60,12 @@ def long_speech(out: Path) -> Path:
         with wave.open(str(f)) as w:
             params = params or w.getparams()
             frames.append(w.readframes(w.getnframes()))
+    data = b"".join(frames)
+    if seconds is not None:
+        data = data[:int(seconds * params.framerate) * params.sampwidth * params.nchannels]
     with wave.open(str(out), "wb") as w:
         w.setparams(params)
-        w.writeframes(b"".join(frames))
+        w.writeframes(data)
     return out
 
 
