@@ -23,7 +23,7 @@ from pipeline.params import Params, as_dict
 log = logging.getLogger("lipsynth.target")
 
 PREPROCESS = ("ingest", "landmarks", "frontalize")
-CACHE_FORMAT = 4          # bump when the preprocessing code changes what it stores
+CACHE_FORMAT = 5          # bump when the preprocessing code changes what it stores (5: half-resolution inpainting)
 
 
 def default_cache() -> Path:
