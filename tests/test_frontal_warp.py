@@ -115,3 +115,15 @@ def test_inpainting_fills_only_the_mask_as_full_resolution_telea_would():
     assert np.array_equal(out[~mask], texture[~mask])
     full = cv2.inpaint(holed, mask.astype(np.uint8), 3.0, cv2.INPAINT_TELEA)
     assert np.abs(out.astype(int) - full)[mask].mean() < 1.5
+
+
+def test_inpainting_radius_still_acts_at_half_resolution():
+    """frontalize.inpaint_radius must change the fill (DVC reruns frontalize when it is edited):
+    at half resolution it acts in steps of 2 px — 3 and 5 px differ, 3 and 4 px are the same."""
+    from stages.frontalize.warp import inpaint
+    rng = np.random.default_rng(2)
+    texture = rng.integers(0, 256, (128, 128, 3)).astype(np.uint8)
+    mask = np.zeros((128, 128), bool)
+    mask[70:110, 20:100] = True
+    r3, r4, r5 = (inpaint(texture, mask, r) for r in (3.0, 4.0, 5.0))
+    assert np.array_equal(r3, r4) and not np.array_equal(r3, r5)

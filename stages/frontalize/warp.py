@@ -72,7 +72,8 @@ def clothing_mask(texture: np.ndarray, jaw_uv: np.ndarray, dark_value: int, whit
 def inpaint(texture: np.ndarray, mask: np.ndarray, radius: float) -> np.ndarray:
     """Telea (2004) fast-marching inpainting of ``mask`` (OpenCV), solved at half resolution.
 
-    texture : (T, T, 3) uint8, T even; mask : (T, T) bool; radius in full-resolution px.
+    texture : (T, T, 3) uint8, T even; mask : (T, T) bool; radius in full-resolution px (used in
+    steps of 2 px, see below).
     Only masked pixels change. The fill is smooth by construction (each pixel a weighted mean of
     the known boundary), so it is computed on the 2 × 2-averaged texture (a half-size pixel is
     masked when any of its four is) and upsampled bilinearly into the mask: 1.6–1.8 against
@@ -85,8 +86,11 @@ def inpaint(texture: np.ndarray, mask: np.ndarray, radius: float) -> np.ndarray:
     h = T // 2
     m = np.asarray(mask, np.uint8)
     small_mask = m[:2 * h, :2 * h].reshape(h, 2, h, 2).max(axis=(1, 3))
+    # OpenCV rounds the radius to whole pixels (half to even): give it one, so the radius acts in
+    # steps of 2 full-resolution px (3–4 → 2, 5–6 → 3 half-size px)
+    small_radius = max(1, int(np.floor(radius / 2 + 0.5)))
     small = cv2.inpaint(cv2.resize(texture[:2 * h, :2 * h], (h, h), interpolation=cv2.INTER_AREA), small_mask,
-                        radius / 2, cv2.INPAINT_TELEA)
+                        small_radius, cv2.INPAINT_TELEA)
     fill = cv2.resize(small, (texture.shape[1], T), interpolation=cv2.INTER_LINEAR)
     out = texture.copy()
     out[m > 0] = fill[m > 0]
