@@ -13,7 +13,6 @@ Cost: 42–55 ms of one core per second of audio (``bench/cross_speaker.py`` pri
 """
 from __future__ import annotations
 
-import functools
 import os
 
 import numpy as np
@@ -29,8 +28,10 @@ PHONE_DIM = len(PHONES)
 _INDEX = {p: i for i, p in enumerate(PHONES)}
 
 
-@functools.lru_cache(maxsize=1)
 def _decoder():
+    """A new decoder (≈ 10 ms): one per utterance. A reused decoder carries its live cepstral-mean
+    estimate from one utterance into the next, so a video's phones would depend on which videos
+    the same worker decoded before it."""
     import pocketsphinx
     model = os.path.join(pocketsphinx.get_model_path(), "en-us")
     # lw / beams: CMU's recommended allphone settings (wide beams, phone-LM weight 2)
