@@ -33,19 +33,20 @@ import copy
 import logging
 import shutil
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from lipsynth.target import default_cache, landmarked_target, preprocess_target
+from lipsynth.target import default_cache, landmarked_target, preprocess_target, warm_up_worker
 from pipeline.audio import front_ends
 from pipeline.face import identity
 from pipeline.errors import BadInputError, ParameterError
 from pipeline.face.dlib_face import IOD_MM, LIP_POINTS, interocular
 from pipeline.face.geometry import rotation, rotation_angle_deg
 from pipeline.models.model_folder import load_speaker
-from pipeline.models.mouth_prediction import check_emotion, check_model_folder, load_audio
-from pipeline.io.parallel import SharedCluster
+from pipeline.models.mouth_prediction import check_emotion, check_model_folder, load_audio, predict_mouth
+from pipeline.io.parallel import SharedCluster, run_tasks
 from pipeline.io.store import open_group
 from pipeline.params import Params, load_params
 from pipeline.io.runner import run_main, setup_logging
@@ -56,13 +57,29 @@ from stages.synthesize import synthesize
 log = logging.getLogger("lipsynth.speak")
 
 
-def target_identity(p: Params, n_frames: int) -> np.ndarray | None:
-    """Median face descriptor (128,) of the preprocessed target (its ingest + landmarks stores)."""
+def target_identity(p: Params, n_frames: int, cluster: SharedCluster | None = None) -> np.ndarray | None:
+    """Median face descriptor (128,) of the preprocessed target (its ingest + landmarks stores).
+
+    The descriptors (≈ 0.1 s of CPU each) are computed on the workers of ``cluster`` when it is
+    running (the target was just preprocessed on it), else here.
+    """
     src, lmg = open_group(p.ingest.out), open_group(p.landmarks.out)
     v = lmg.attrs["videos"][0]
-    d = identity.video_descriptor(src["crops"], np.asarray(lmg["landmarks"][...]), np.asarray(lmg["valid"][...]),
-                                  v["crop"], n_frames)
-    return None if d is None else identity.identity(d)
+    landmarks = np.asarray(lmg["landmarks"][...])
+    frames = identity.sampled_frames(np.asarray(lmg["valid"][...]), n_frames)
+    if not len(frames):
+        return None
+    if cluster is not None and cluster.running:
+        with cluster.client() as client:
+            n = max(1, min(len(frames), len(client.scheduler_info()["workers"])))
+            parts = np.array_split(frames, n)
+            jobs = [dict(ingest=str(Path(p.ingest.out).absolute()), frames=part.tolist(), landmarks=landmarks[part],
+                         crop=v["crop"]) for part in parts]
+            d = np.concatenate(run_tasks(client, identity.stored_descriptors, jobs, "identity", "frame",
+                                         [len(part) for part in parts]))
+    else:
+        d = identity.frame_descriptors(src["crops"], landmarks, frames, v["crop"])
+    return identity.identity(d)
 
 
 def distinct_shapes(shapes: np.ndarray, radius: float) -> int:
@@ -147,14 +164,14 @@ def audio_domain_check(samples, model: str, p: Params, audio: str) -> dict | Non
     return res
 
 
-def choose_speaker(p: Params, model: str, target: str) -> tuple[dict | None, dict]:
+def choose_speaker(p: Params, model: str, target: str, cluster: SharedCluster | None = None) -> tuple[dict | None, dict]:
     """Is the target the model's speaker? Returns (the model's speaker when it is and its bank fits, report)."""
     speaker = load_speaker(model)
     if speaker is None:
         log.warning("%s has no speaker record (trained before identities were stored): treating the target as "
                     "another person (its own 3D model, mouths from the target only)", model)
         return None, dict(identity_distance=None, same_speaker=False)
-    who = target_identity(p, p.speak.identity_frames)
+    who = target_identity(p, p.speak.identity_frames, cluster)
     dist = identity.distance(who, speaker["identity"]) if who is not None else float("inf")
     same = dist < p.speak.same_speaker_distance
     log.info("identity: target is %.3f from the model's speaker (same person below speak.same_speaker_distance=%.2f, "
@@ -194,57 +211,66 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
         raise ParameterError(f"--out {out}: the folder {Path(out).absolute().parent} does not exist")
     model = model or params.synthesize.model
     samples = load_audio(audio)                # a bad audio file fails now, not after preprocessing,
-    probe_video(str(target), params.ingest, require_audio=False)     # so does a target failing header checks
+    fps = probe_video(str(target), params.ingest, require_audio=False)["fps"]   # so does a target failing header checks
     check_model_folder(model)                  # and a bad model folder (any family)
     check_emotion(model, emotion)              # and an emotion the model cannot take
     domain = audio_domain_check(samples, model, params, audio)
     cache = cache or default_cache()
-    with SharedCluster(params.cluster) as cluster:      # one cluster for all preprocessing, if any is needed
-        p = landmarked_target(Path(target), params, cache, cluster)
-        speaker, report = choose_speaker(p, model, target)
-        report["audio_domain"] = domain
-        if speaker is not None and speaker["bank"] is not None:     # frontalize as the model's bank was: same window
-            p = with_texture_window(p, open_group(speaker["bank"]).attrs["texture_window"])
-        p = preprocess_target(Path(target), p, cache, shape3d=None if speaker is None else speaker["shape3d"],
-                              shared=cluster)
-    report["fit"] = fit_report(p, target)
-    p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, model
-    p.synthesize.emotion = emotion
-    p.composite.diagnostic = diagnostic
-    stores = synthesize.open_stores(p, pca=False)
-    window = stores["frontalize"].attrs["texture_window"]
-    if speaker is not None and speaker["bank"] is not None:
-        bank = open_group(speaker["bank"])
-        if same_window(bank.attrs["texture_window"], window):
-            stores["bank"] = bank
-        else:
-            log.warning("the model's candidate bank has another texture window (%s) than these params (%s): "
-                        "mouths from the target only", bank.attrs["texture_window"], window)
-    # the model's PCA frame is the target's when both share the corpus 3D model and the bank
-    p.synthesize.retarget = "never" if "bank" in stores else "always"
-    report["path"] = "same speaker: corpus 3D model + candidate bank" if "bank" in stores else \
-        "another person: own 3D model, target's mouths, re-targeted shapes"
-    entry = dict(stores["frontalize"].attrs["videos"][0], path=str(target))     # messages name the user's file
-    if "bank" not in stores:
-        fr, lmg = stores["frontalize"], stores["landmarks"]
-        own = synthesize.usable(fr, lmg, entry)
-        shapes = np.asarray(fr["frontal_landmarks"][...], np.float64)[own][:, LIP_POINTS]
-        iod_px = IOD_MM / window["mm_per_px"]
-        n_shapes = distinct_shapes(shapes, 0.02 * iod_px)
-        report["distinct_mouth_shapes"] = n_shapes
-        if n_shapes < p.speak.min_mouth_shapes:
-            log.warning("%s: the target covers only %d distinct mouth shapes (%d usable frames; "
-                        "speak.min_mouth_shapes=%d): mouths will repeat and miss shapes — a longer target video "
-                        "of this person helps", target, n_shapes, len(own), p.speak.min_mouth_shapes)
-    log.info("speak: %s", report["path"])
-    work = Path(tempfile.mkdtemp(prefix=".lipsynth-speak-", dir=Path(out).absolute().parent))
+    # the mouth shapes depend on the audio, the model and the target's frame rate alone: predicted in a
+    # thread of this process while the workers preprocess the target
+    predicting = ThreadPoolExecutor(1, thread_name_prefix="predict_mouth")
+    mouth = predicting.submit(predict_mouth, samples, model, fps, device=params.synthesize.device, source=str(audio),
+                              emotion=emotion)
     try:
-        ms = synthesize.run(p, str(work / "synthesize.zarr"), stores, entry)
-        ms.update(composite.run(p, str(work / "synthesize.zarr"), out, p.frontalize.out, str(target), str(audio)))
+        with SharedCluster(params.cluster, warm_up=warm_up_worker) as cluster:   # one cluster for all preprocessing
+            p = landmarked_target(Path(target), params, cache, cluster)
+            speaker, report = choose_speaker(p, model, target, cluster)
+            report["audio_domain"] = domain
+            if speaker is not None and speaker["bank"] is not None:     # frontalize as the model's bank was: same window
+                p = with_texture_window(p, open_group(speaker["bank"]).attrs["texture_window"])
+            p = preprocess_target(Path(target), p, cache, shape3d=None if speaker is None else speaker["shape3d"],
+                                  shared=cluster)
+        report["fit"] = fit_report(p, target)
+        p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, model
+        p.synthesize.emotion = emotion
+        p.composite.diagnostic = diagnostic
+        stores = synthesize.open_stores(p, pca=False)
+        window = stores["frontalize"].attrs["texture_window"]
+        if speaker is not None and speaker["bank"] is not None:
+            bank = open_group(speaker["bank"])
+            if same_window(bank.attrs["texture_window"], window):
+                stores["bank"] = bank
+            else:
+                log.warning("the model's candidate bank has another texture window (%s) than these params (%s): "
+                            "mouths from the target only", bank.attrs["texture_window"], window)
+        # the model's PCA frame is the target's when both share the corpus 3D model and the bank
+        p.synthesize.retarget = "never" if "bank" in stores else "always"
+        report["path"] = "same speaker: corpus 3D model + candidate bank" if "bank" in stores else \
+            "another person: own 3D model, target's mouths, re-targeted shapes"
+        entry = dict(stores["frontalize"].attrs["videos"][0], path=str(target))     # messages name the user's file
+        if "bank" not in stores:
+            fr, lmg = stores["frontalize"], stores["landmarks"]
+            own = synthesize.usable(fr, lmg, entry)
+            shapes = np.asarray(fr["frontal_landmarks"][...], np.float64)[own][:, LIP_POINTS]
+            iod_px = IOD_MM / window["mm_per_px"]
+            n_shapes = distinct_shapes(shapes, 0.02 * iod_px)
+            report["distinct_mouth_shapes"] = n_shapes
+            if n_shapes < p.speak.min_mouth_shapes:
+                log.warning("%s: the target covers only %d distinct mouth shapes (%d usable frames; "
+                            "speak.min_mouth_shapes=%d): mouths will repeat and miss shapes — a longer target video "
+                            "of this person helps", target, n_shapes, len(own), p.speak.min_mouth_shapes)
+        log.info("speak: %s", report["path"])
+        work = Path(tempfile.mkdtemp(prefix=".lipsynth-speak-", dir=Path(out).absolute().parent))
+        try:
+            ms = synthesize.run(p, str(work / "synthesize.zarr"), stores, entry,
+                                mouth=mouth.result() if entry["fps"] == fps else None)
+            ms.update(composite.run(p, str(work / "synthesize.zarr"), out, p.frontalize.out, str(target), str(audio)))
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        report["self_check"] = ms.pop("self_check", None)
+        ms["report"] = report
     finally:
-        shutil.rmtree(work, ignore_errors=True)
-    report["self_check"] = ms.pop("self_check", None)
-    ms["report"] = report
+        predicting.shutdown(wait=False, cancel_futures=True)
     return ms
 
 

@@ -17,13 +17,27 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.parallel import SharedCluster, client_for
+from pipeline.errors import ParameterError
+from pipeline.io.parallel import IN_PROCESS, SharedCluster, client_address, client_for
 from pipeline.params import Params, as_dict
 
 log = logging.getLogger("lipsynth.target")
 
 PREPROCESS = ("ingest", "landmarks", "frontalize")
 CACHE_FORMAT = 5          # bump when the preprocessing code changes what it stores (5: half-resolution inpainting)
+
+
+def warm_up_worker() -> None:
+    """Run on each worker of ``speak``'s cluster at its start (``SharedCluster(warm_up=...)``): import the
+    preprocessing stages and load dlib's detector, landmark predictor and face-recognition network, so
+    the worker that ingest (one task per video) leaves idle is ready for landmarks and identity."""
+    from pipeline.face import dlib_face, identity
+    from stages.frontalize import frontalize  # noqa: F401
+    from stages.ingest import ingest  # noqa: F401
+    from stages.landmarks import landmarks  # noqa: F401
+    dlib_face.detector()
+    dlib_face.predictor()
+    identity.recogniser()
 
 
 def default_cache() -> Path:
@@ -82,7 +96,7 @@ def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndar
              "its own 3D face model")
     with (shared.client() if shared else client_for(p.cluster)) as client:
         run = copy.deepcopy(p)
-        run.cluster.address = client.scheduler.address
+        run.cluster.address = client_address(client)
         frontalize.run(run, p.ingest.out, p.landmarks.out, p.frontalize.out, shape3d=shape3d)
     return p
 
@@ -92,7 +106,11 @@ def landmarked_target(video: Path, params: Params, cache: Path, shared: SharedCl
     from stages.ingest import ingest
     from stages.landmarks import landmarks
     p = copy.deepcopy(params)
-    folder = cache / f"{video.stem}-{cache_key(video, params)}"
+    if p.speak.target_shard_frames % p.ingest.chunk_frames or p.speak.target_shard_frames % p.frontalize.chunk_frames:
+        raise ParameterError(f"speak.target_shard_frames={p.speak.target_shard_frames}: must be a multiple of "
+                             f"ingest.chunk_frames and frontalize.chunk_frames")
+    p.ingest.shard_frames = p.speak.target_shard_frames     # one video: several shards, so several workers
+    folder = cache / f"{video.stem}-{cache_key(video, p)}"
     p.data.videos, p.data.val_fraction, p.data.on_bad_input = [str(video.absolute())], 0.0, "error"
     for stage in PREPROCESS:
         getattr(p, stage).out = str(folder / f"{stage}.zarr")
@@ -102,7 +120,9 @@ def landmarked_target(video: Path, params: Params, cache: Path, shared: SharedCl
     log.info("target %s: preprocessing into %s (ingest → landmarks)", video, folder)
     run = copy.deepcopy(p)
     with (shared.client() if shared else client_for(p.cluster)) as client:      # one cluster for both stages
-        run.cluster.address = client.scheduler.address
+        # one video is one ingest task: it runs here, while the workers start (and warm up)
+        run.cluster.address = IN_PROCESS
         ingest.run(run, p.ingest.out, require_audio=False)       # the new speech replaces its audio
+        run.cluster.address = client_address(client)
         landmarks.run(run, p.ingest.out, p.landmarks.out)
     return p

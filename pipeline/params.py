@@ -313,6 +313,7 @@ class Speak:
     max_reprojection_median: float = 0.08
     max_pose_jump_deg: float = 10.0
     audio_shift_factor: float = 1.2
+    target_shard_frames: int = 64
 
 
 @dataclass

@@ -132,6 +132,16 @@ def test_stores_are_byte_identical_to_a_local_cluster_run(tmp_path, grid_preproc
     assert leftovers(tmp_path) == []
 
 
+@pytest.mark.slow
+def test_in_process_stores_are_byte_identical_to_a_local_cluster_run(tmp_path, grid_preprocessed):
+    """``cluster.address: in-process`` (how ``speak`` ingests its one target) runs the same tasks here."""
+    params = make_params(tmp_path, clips(), cluster={"address": "in-process"})
+    run_preprocessing(params, ("ingest", "landmarks"))
+    for name in ("ingest", "landmarks"):
+        assert_same_store(grid_preprocessed / f"{name}.zarr", tmp_path / f"{name}.zarr")
+    assert leftovers(tmp_path) == []
+
+
 def scheduler_transitions(client, keys):
     """(key, start, finish) of every scheduler transition of ``keys`` so far."""
     keys = set(keys)

@@ -550,6 +550,9 @@ def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
     assert "far from the model's training audio" in r.stderr               # radio speech, not the synthetic voice
     assert "another person" in r.stderr and "candidate bank" not in r.stderr     # never the synthetic face's mouth
     assert r.stderr.count("starting LocalCluster") == 1, r.stderr[-3000:]    # one cluster for all preprocessing
+    import zarr
+    stores = list((tmp_path / "cache").glob("WDA_KatieHill_000-*/ingest.zarr"))
+    assert len(stores) == 1 and zarr.open_group(stores[0], mode="r")["crops"].shards[0] == 64   # speak.target_shard_frames
     checked = re.search(r"self-check: (\d+) frames checked, (\d+) fell back", r.stderr)
     assert checked and int(checked[1]) >= 190 and int(checked[2]) <= 10, r.stderr[-2000:]
     landmarks = load_params(project / "params.yaml").landmarks

@@ -16,7 +16,7 @@ import numpy as np
 
 
 @functools.lru_cache(maxsize=1)
-def _recogniser():
+def recogniser():
     import dlib
     from pipeline.face.dlib_face import predictor_path
     return dlib.face_recognition_model_v1(os.path.join(os.path.dirname(predictor_path()),
@@ -30,7 +30,7 @@ def face_descriptor(rgb: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     x0, y0 = np.floor(landmarks.min(0)).astype(int)
     x1, y1 = np.ceil(landmarks.max(0)).astype(int)
     shape = dlib.full_object_detection(dlib.rectangle(int(x0), int(y0), int(x1), int(y1)), pts)
-    return np.asarray(_recogniser().compute_face_descriptor(np.ascontiguousarray(rgb), shape), np.float32)
+    return np.asarray(recogniser().compute_face_descriptor(np.ascontiguousarray(rgb), shape), np.float32)
 
 
 def crop_landmarks(landmarks: np.ndarray, crop) -> np.ndarray:
@@ -39,19 +39,41 @@ def crop_landmarks(landmarks: np.ndarray, crop) -> np.ndarray:
     return (np.asarray(landmarks, np.float64) - [x0, y0]) / s
 
 
+def sampled_frames(valid: np.ndarray, n_frames: int = 20) -> np.ndarray:
+    """Indices of up to ``n_frames`` evenly spaced valid frames (valid : (N,) bool)."""
+    idx = np.flatnonzero(valid)
+    if not len(idx):
+        return idx
+    return idx[np.unique(np.linspace(0, len(idx) - 1, min(n_frames, len(idx))).round().astype(int))]
+
+
 def video_descriptor(crops, landmarks: np.ndarray, valid: np.ndarray, crop, n_frames: int = 20) -> np.ndarray | None:
     """Per-frame descriptors (F, 128) of up to ``n_frames`` evenly spaced valid frames of one video.
 
     crops : indexable (N, 3S/2, S) I420 crops; landmarks : (N, 68, 2) frame px; valid : (N,) bool.
     None when no frame is valid.
     """
+    idx = sampled_frames(valid, n_frames)
+    return frame_descriptors(crops, landmarks, idx, crop) if len(idx) else None
+
+
+def frame_descriptors(crops, landmarks: np.ndarray, frames, crop) -> np.ndarray:
+    """Descriptors (F, 128) of ``frames`` (F,) indices into crops (N, 3S/2, S) I420 and landmarks (N, 68, 2) frame px."""
     from pipeline.io.store import i420_to_rgb
-    idx = np.flatnonzero(valid)
-    if not len(idx):
-        return None
-    idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(n_frames, len(idx))).round().astype(int))]
+    if not len(frames):
+        return np.zeros((0, 128), np.float32)
     return np.stack([face_descriptor(i420_to_rgb(np.asarray(crops[i])), crop_landmarks(landmarks[i], crop))
-                     for i in idx])
+                     for i in frames])
+
+
+def stored_descriptors(job: dict) -> np.ndarray:
+    """A worker task: ``frame_descriptors`` of ``job["frames"]`` read from the ingest store ``job["ingest"]``
+    (crops) with ``job["landmarks"]`` (F, 68, 2) frame px and ``job["crop"]``."""
+    import zarr
+    crops = zarr.open_group(job["ingest"], mode="r")["crops"]
+    frames = np.asarray(job["frames"], int)
+    return frame_descriptors(crops, {i: lm for i, lm in zip(frames, np.asarray(job["landmarks"]))}, frames,
+                             job["crop"])
 
 
 def identity(descriptors: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ from pipeline.errors import LipsynthError
 log = logging.getLogger("lipsynth.parallel")
 
 _OWN_CLUSTERS: set[str] = set()     # addresses of the LocalClusters this process started (127.0.0.1 only)
+IN_PROCESS = "in-process"           # cluster.address: no cluster, tasks run one after another in this process
 
 
 def security_for(cluster):
@@ -56,20 +57,25 @@ def security_for(cluster):
 
 @contextlib.contextmanager
 def client_for(cluster):
-    """Yield a ``distributed.Client``.
+    """Yield a ``distributed.Client`` (None for ``in-process``: ``run_tasks`` then runs the tasks here).
 
     Parameters
     ----------
     cluster : pipeline.params.Cluster
         ``address`` (str or None): a running scheduler (``tcp://host:8786``, or ``tls://host:8786``
         with ``security``); None starts a LocalCluster on 127.0.0.1 with ``n_workers`` (None →
-        one per core) single-threaded worker processes.
+        one per core) single-threaded worker processes; ``in-process``: no cluster, the tasks run
+        one after another in this process (debugging; ``lipsynth speak`` ingests its one target
+        video so while its cluster's workers start).
     """
+    address = cluster.address
+    if address == IN_PROCESS:
+        yield None
+        return
     from distributed import Client, LocalCluster
 
     for name in ("distributed", "tornado", "bokeh"):
         logging.getLogger(name).setLevel(logging.WARNING)
-    address = cluster.address
     if address:
         security = security_for(cluster)
         log.info("connecting to dask scheduler %s%s", address, " (TLS)" if security else "")
@@ -100,10 +106,12 @@ def run_tasks(client, fn, items: list, desc: str, unit: str = "task", weights: l
     A progress bar advances by ``weights[i]`` (e.g. frames) when task i finishes. The first
     task error is re-raised in the caller (the remaining tasks are cancelled).
     """
-    from distributed import as_completed
-
     if not items:
         return []
+    if client is None:                  # cluster.address: in-process
+        return _run_here(fn, items, desc, unit, weights)
+    from distributed import as_completed
+
     futures = client.map(fn, items, pure=False)
     order = {f.key: i for i, f in enumerate(futures)}
     results = [None] * len(items)
@@ -120,6 +128,21 @@ def run_tasks(client, fn, items: list, desc: str, unit: str = "task", weights: l
     return results
 
 
+def _run_here(fn, items: list, desc: str, unit: str, weights: list | None) -> list:
+    """``run_tasks`` without a cluster: the tasks one after another in this process. Tasks set
+    process-wide library state for their worker (OpenCV's thread count): restored after each."""
+    from pipeline.io.threads import opencv_threads
+    import cv2
+
+    results = []
+    with tqdm(total=sum(weights) if weights else len(items), desc=desc, unit=unit, dynamic_ncols=True) as bar:
+        for i, item in enumerate(items):
+            with opencv_threads(cv2.getNumThreads()):
+                results.append(fn(item))
+            bar.update(weights[i] if weights else 1)
+    return results
+
+
 class SharedCluster:
     """One cluster for several stage runs of an application (``lipsynth speak``'s preprocessing).
 
@@ -127,12 +150,19 @@ class SharedCluster:
     ``cluster.address``), later calls reuse it, so workers start and import the stages' code
     once; nothing starts when nothing needs computing. Use as a context manager: the cluster
     closes on exit.
+
+    ``warm_up``: a function run once on every worker as soon as the cluster is up (imports,
+    model loading), before any stage task — so a worker that the first stage leaves idle
+    (one video is one ingest task) gets ready for the next stage meanwhile.
     """
 
-    def __init__(self, cluster):
+    def __init__(self, cluster, warm_up=None):
         self.cluster = cluster
+        self.warm_up = warm_up
         self._stack = contextlib.ExitStack()
         self._client = None
+        self._started = False
+        self._warming: list = []            # held: a released future would be forgotten by the scheduler
 
     def __enter__(self) -> "SharedCluster":
         return self
@@ -141,8 +171,29 @@ class SharedCluster:
         self._stack.close()
         return False
 
+    @property
+    def running(self) -> bool:
+        """Has the cluster been started (or connected to; always false before the first ``client()``)?"""
+        return self._started
+
     @contextlib.contextmanager
     def client(self):
-        if self._client is None:
+        """The Client (None with ``cluster.address: in-process``: ``run_tasks`` runs tasks here)."""
+        if not self._started:
             self._client = self._stack.enter_context(client_for(self.cluster))
+            self._started = True
+            if self.warm_up is not None and self._client is not None:
+                self._warming = warm_workers(self._client, self.warm_up)
         yield self._client
+
+
+def client_address(client) -> str:
+    """The ``cluster.address`` that reaches ``client``'s scheduler (``in-process`` for None), for stages
+    run inside another's cluster."""
+    return IN_PROCESS if client is None else client.scheduler.address
+
+
+def warm_workers(client, fn) -> list:
+    """Submit ``fn()`` once to each worker of ``client``'s cluster (pinned to it); returns the futures."""
+    workers = list(client.scheduler_info()["workers"])
+    return [client.submit(fn, workers=[w], allow_other_workers=False, pure=False) for w in workers]

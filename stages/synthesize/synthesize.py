@@ -174,9 +174,13 @@ def corpus_target(stores: dict, name: str, frontalize_path: str) -> dict:
     return entry
 
 
-def run(params: Params, out: str, stores: dict, entry: dict) -> dict:
+def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None = None) -> dict:
     """Synthesize the textures of ``entry`` (a video of ``stores``) saying ``synthesize.audio``
-    into ``out``; returns the thread time per output frame of each phase (ms)."""
+    into ``out``; returns the thread time per output frame of each phase (ms).
+
+    ``mouth``: ``predict_mouth``'s output for that audio at the entry's frame rate, when the caller
+    has it already (``lipsynth speak`` predicts while the target is preprocessed); None predicts here.
+    """
     p = params.synthesize
     fr, lmg = stores["frontalize"], stores["landmarks"]
     n_usable = len(usable(fr, lmg, entry))
@@ -191,7 +195,8 @@ def run(params: Params, out: str, stores: dict, entry: dict) -> dict:
     timing: dict = {}
     t0 = t_start = time.perf_counter()
     samples = load_audio(p.audio)
-    mouth = predict_mouth(samples, p.model, entry["fps"], device=p.device, source=p.audio, emotion=p.emotion)
+    if mouth is None:
+        mouth = predict_mouth(samples, p.model, entry["fps"], device=p.device, source=p.audio, emotion=p.emotion)
     if p.retarget not in ("auto", "always", "never"):
         raise ParameterError(f"synthesize.retarget={p.retarget!r}: choose auto, always or never")
     same_corpus = "pca" in stores and mouth["pca_fingerprint"] == stores["pca"].attrs["fingerprint"]

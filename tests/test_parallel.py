@@ -1,0 +1,42 @@
+"""Task execution without a cluster (``cluster.address: in-process``) and the shared cluster of `speak`."""
+import cv2
+import pytest
+
+from pipeline.io.parallel import IN_PROCESS, SharedCluster, client_address, client_for, run_tasks
+from pipeline.params import Cluster
+
+
+def _square_and_pin_opencv(x):
+    cv2.setNumThreads(1)                 # what a stage task does in its worker process
+    return x * x
+
+
+def test_in_process_runs_every_task_in_order_and_restores_opencv_threads():
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(3)
+    try:
+        with client_for(Cluster(address=IN_PROCESS)) as client:
+            assert client is None
+            assert run_tasks(client, _square_and_pin_opencv, [3, 1, 2], "t", weights=[5, 1, 1]) == [9, 1, 4]
+        assert cv2.getNumThreads() == 3
+    finally:
+        cv2.setNumThreads(before)
+
+
+def test_in_process_task_errors_reach_the_caller():
+    def fail(x):
+        raise ValueError(f"bad {x}")
+    with pytest.raises(ValueError, match="bad 2"):
+        run_tasks(None, fail, [2, 3], "t")
+
+
+def test_shared_in_process_cluster_starts_once_and_warms_nothing():
+    calls = []
+    with SharedCluster(Cluster(address=IN_PROCESS), warm_up=lambda: calls.append(1)) as shared:
+        assert not shared.running
+        with shared.client() as c:
+            assert c is None and client_address(c) == IN_PROCESS
+        assert shared.running
+        with shared.client() as c:
+            assert c is None
+    assert calls == []                   # no workers to warm: the function never runs here
