@@ -78,7 +78,7 @@ def target_identity(p: Params, n_frames: int, cluster: SharedCluster | None = No
             d = np.concatenate(run_tasks(client, identity.stored_descriptors, jobs, "identity", "frame",
                                          [len(part) for part in parts]))
     else:
-        d = identity.frame_descriptors(src["crops"], landmarks, frames, v["crop"])
+        d = identity.frame_descriptors(src["crops"], frames, landmarks[frames], v["crop"])
     return identity.identity(d)
 
 

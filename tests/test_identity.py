@@ -47,12 +47,12 @@ def test_descriptors_read_from_a_store_equal_those_of_the_frames(tmp_path):
         box, _ = dlib_face.detect_face(gray, 1)
         lms.append(dlib_face.predict_landmarks(gray, box) * 2 + [10.0, 4.0])   # frame px of a crop at (10, 4), s = 2
     crop = (10.0, 4.0, 2.0)
-    here = identity.frame_descriptors(crops, np.asarray(lms), [0, 2], crop)
+    here = identity.frame_descriptors(crops, [0, 2], np.asarray(lms)[[0, 2]], crop)
     ingest = tmp_path / "ingest.zarr"
     zarr.open_group(ingest, mode="w").create_array("crops", data=crops[:], chunks=(1, 432, 288))
     there = identity.stored_descriptors(dict(ingest=str(ingest), frames=[0, 2], landmarks=np.asarray(lms)[[0, 2]],
                                              crop=crop))
     assert here.shape == (2, 128)
     np.testing.assert_array_equal(here, there)
-    other = identity.frame_descriptors(crops, np.asarray(lms), [1], crop)
+    other = identity.frame_descriptors(crops, [1], np.asarray(lms)[[1]], crop)
     assert 0 < identity.distance(here[0], other[0]) < 0.4            # a real descriptor: same person, another frame

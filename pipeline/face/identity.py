@@ -54,16 +54,17 @@ def video_descriptor(crops, landmarks: np.ndarray, valid: np.ndarray, crop, n_fr
     None when no frame is valid.
     """
     idx = sampled_frames(valid, n_frames)
-    return frame_descriptors(crops, landmarks, idx, crop) if len(idx) else None
+    return frame_descriptors(crops, idx, np.asarray(landmarks)[idx], crop) if len(idx) else None
 
 
-def frame_descriptors(crops, landmarks: np.ndarray, frames, crop) -> np.ndarray:
-    """Descriptors (F, 128) of ``frames`` (F,) indices into crops (N, 3S/2, S) I420 and landmarks (N, 68, 2) frame px."""
+def frame_descriptors(crops, frames, landmarks: np.ndarray, crop) -> np.ndarray:
+    """Descriptors (F, 128) of ``frames`` (F,) indices into crops (N, 3S/2, S) I420, with their
+    landmarks (F, 68, 2) frame px."""
     from pipeline.io.store import i420_to_rgb
     if not len(frames):
         return np.zeros((0, 128), np.float32)
-    return np.stack([face_descriptor(i420_to_rgb(np.asarray(crops[i])), crop_landmarks(landmarks[i], crop))
-                     for i in frames])
+    return np.stack([face_descriptor(i420_to_rgb(np.asarray(crops[i])), crop_landmarks(lm, crop))
+                     for i, lm in zip(frames, landmarks)])
 
 
 def stored_descriptors(job: dict) -> np.ndarray:
@@ -71,9 +72,7 @@ def stored_descriptors(job: dict) -> np.ndarray:
     (crops) with ``job["landmarks"]`` (F, 68, 2) frame px and ``job["crop"]``."""
     import zarr
     crops = zarr.open_group(job["ingest"], mode="r")["crops"]
-    frames = np.asarray(job["frames"], int)
-    return frame_descriptors(crops, {i: lm for i, lm in zip(frames, np.asarray(job["landmarks"]))}, frames,
-                             job["crop"])
+    return frame_descriptors(crops, job["frames"], np.asarray(job["landmarks"]), job["crop"])
 
 
 def identity(descriptors: np.ndarray) -> np.ndarray:
