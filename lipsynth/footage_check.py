@@ -17,6 +17,29 @@ from pipeline.face import identity
 
 log = logging.getLogger("lipsynth.personalize")
 MIN_USABLE_SECONDS = 15.0        #: tracked face needed in all (personalize asks 1.5 segments: 15 s of 10-s segments)
+MIN_FLOOR_CORR = 0.5             #: tracked lips of a video and of its re-encoding must agree this well to learn from
+
+
+def tracker_floor(path, landmark_params, crf: int = 18) -> float:
+    """How well the tracker sees this mouth: the correlation of the inner-lip opening tracked on
+    ``path`` with the opening tracked on the same frames re-encoded (H.264 CRF ``crf``), over the
+    frames tracked in both — the most any model scored by this tracker can reach (1 = noise-free)."""
+    import tempfile
+    from pathlib import Path
+
+    from lipsynth.lipsync_quality import inner_opening, video_landmarks
+    from pipeline.io import media
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / "reencoded.mp4"
+        media.write_video(copy, (frame for _, frame in media.iter_frames(path)), media.probe(path).fps, crf=crf)
+        _, lm_a, ok_a = video_landmarks(path, landmark_params)
+        _, lm_b, ok_b = video_landmarks(copy, landmark_params)
+    n = min(len(lm_a), len(lm_b))
+    ok = ok_a[:n] & ok_b[:n]
+    if ok.sum() < 10:
+        return float("nan")
+    a, b = inner_opening(lm_a[:n][ok]), inner_opening(lm_b[:n][ok])
+    return float(np.corrcoef(a, b)[0, 1]) if a.std() > 0 and b.std() > 0 else 0.0
 
 
 def verdict(usable_s: dict[str, float], people: dict[str, np.ndarray], same_person: float,

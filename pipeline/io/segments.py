@@ -47,10 +47,19 @@ def segment_group(name: str) -> tuple[str, int] | None:
     return (m["stem"], int(m["index"])) if m else None
 
 
-def cut_video(path, seconds: float, out_dir, crf: int = 18) -> list[Path]:
+def video_seconds(info: media.VideoInfo) -> float:
+    """The duration of a probed video's frames (s): frame count / rate, else the container's."""
+    return info.n_frames / info.fps if info.n_frames else info.duration
+
+
+def cut_video(path, seconds: float, out_dir, crf: int = 18, stem: str | None = None, first_index: int = 0,
+              min_segments: int = 2) -> list[Path]:
     """Write ``path`` as segment files ``out_dir/<stem>_sNNN.mp4`` (created atomically: all or none).
 
-    Raises BadInputError for a file without audio or shorter than two segments' worth of footage.
+    ``stem`` (default: the file's) and ``first_index`` number the segments, so several short clips
+    can be cut into one group (``data.split: time`` then holds out the group's last segments: the
+    last clips). Raises BadInputError for a file without audio or with fewer than ``min_segments``
+    segments' worth of footage.
     """
     path, out_dir = Path(path), Path(out_dir)
     info = media.probe(path)
@@ -62,9 +71,9 @@ def cut_video(path, seconds: float, out_dir, crf: int = 18) -> list[Path]:
     if first is None:
         raise BadInputError(path, "no decodable video frames")
     v_start = first[0]
-    duration = info.n_frames / info.fps if info.n_frames else info.duration     # the video's, not the audio's
+    duration = video_seconds(info)                                  # the video's, not the audio's
     bounds = segment_bounds(duration, seconds)
-    if len(bounds) < 2:
+    if len(bounds) < min_segments:
         raise BadInputError(path, f"{duration:.1f} s of footage: too short to split into training and held-out "
                                   f"parts of {seconds:g} s (needs at least {1.5 * seconds:g} s)")
     audio = media.align_audio(samples, a_start, v_start, duration + 1.0, AUDIO_RATE)
@@ -76,7 +85,7 @@ def cut_video(path, seconds: float, out_dir, crf: int = 18) -> list[Path]:
         pending = first
         for k, (t0, t1) in enumerate(bounds):
             a0, a1 = int(round(t0 * AUDIO_RATE)), int(round(t1 * AUDIO_RATE))
-            target = tmp / f"{path.stem}_s{k:03d}.mp4"
+            target = tmp / f"{stem or path.stem}_s{first_index + k:03d}.mp4"
             with media.VideoWriter(target, info.fps, crf, audio=audio[a0:a1], sample_rate=AUDIO_RATE) as w:
                 last = k == len(bounds) - 1
                 while pending is not None and (last or pending[0] - v_start < t1 - 0.5 / info.fps):

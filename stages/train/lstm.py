@@ -72,7 +72,9 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
     p : train params (hidden, layers, batch_size, bptt, lr; steps, val_every, patience unless
         ``budget`` is given; ``fine_tune`` when ``init`` is given).
     init : a starting point (``stages/train/fine_tune.initial_state``: state, hidden, layers) instead
-        of random weights; ``p.fine_tune == "output"`` then trains the read-out layer only.
+        of random weights; ``p.fine_tune == "output"`` then trains the read-out layer only. With
+        ``init["anchor"]`` = λ > 0 the loss adds λ · Σ ‖θ − θ₀‖² over the trained weights (L2-SP:
+        fine-tuning pulled toward its starting point, ``stages/train/adapt.py``).
 
     Returns
     -------
@@ -95,6 +97,8 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
         model = model.to(device)
         trained = list(model.out.parameters()) if p.fine_tune == "output" else list(model.parameters())
     opt = torch.optim.Adam(trained, lr=p.lr)
+    anchor = float(init.get("anchor", 0.0)) if init else 0.0
+    start = [w.detach().clone() for w in trained] if anchor else []
     # x may hold K variants (K, m, n_in) of the same audio (VTLP copies): each epoch draws one per video
     variants = [[delayed_pairs(xv, y, ok, delay) for xv in (x if x.ndim == 3 else x[None])] for x, y, ok in train_seqs]
     frames = sum(len(v[0][0]) for v in variants)
@@ -115,7 +119,11 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
             state = tuple(s.detach() for s in state)
             loss = masked_l2(pred, Y[:, a:a + p.bptt], M[:, a:a + p.bptt].float())
             opt.zero_grad()
-            loss.backward()
+            if anchor:
+                pull = sum(((w - w0) ** 2).sum() for w, w0 in zip(trained, start))
+                (loss + anchor * pull).backward()
+            else:
+                loss.backward()
             opt.step()
             w = float(M[:, a:a + p.bptt].sum())
             total, count = total + loss.item() * w, count + w

@@ -1,0 +1,102 @@
+"""Rebuild the shipped base model ``models/base/`` from the GRID s1 corpus (one command).
+
+    python bench/shipped_base.py [--corpus ../shared/data/grid_s1/video] [--steps 6300] [--out models/base]
+
+The base model is what ``lipsynth personalize`` starts from on a fresh clone: the shipped front end's
+LSTM (``params.yaml``'s ``train.features``, ``feature_norm``, ``delay``) trained on GRID speaker 1's
+900 read sentences (45 min, CC BY 4.0; ``configs/grid_s1.yaml`` names the corpus), with the
+paper-length budget of that config. Steps:
+
+1. ``configs/grid_s1.yaml`` merged into params.yaml with the shipped front-end keys, written to
+   ``runs/grid_s1/params_base.yaml``; the stores under ``runs/grid_s1/store/`` (ingest → landmarks
+   → frontalize → pca → whisper) are made when absent (≈ 10 min on 2 cores), reused otherwise;
+2. ``stages.train.train`` into ``runs/grid_s1/base_shipped/``;
+3. the model's three files (weights, config, arrays — no candidate bank, no face: a base carries
+   no person) copied into ``--out`` with ``MANIFEST.json``: their SHA-256 (checked at every load,
+   ``pipeline.models.base_model``), the corpus, its licence, the commit and the date.
+
+People you will evaluate or personalize on stay out of the base (GRID s4, Obama, HDTF, Macron, Lieu).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.models.base_model import MODEL_FILES, write_manifest  # noqa: E402
+from pipeline.params import as_dict, parse  # noqa: E402
+
+PREPROCESS = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
+              ("frontalize", "stages.frontalize.frontalize"), ("pca", "stages.pca.pca"),
+              ("whisper", "stages.whisper.whisper")]
+FRONT_END_KEYS = ("features", "feature_norm", "delay", "vtlp_warps", "pitch_shifts")
+LICENCE = ("GRID audiovisual sentence corpus, speaker 1 (Cooke, Barker, Cunningham & Shao 2006), "
+           "CC BY 4.0 — https://doi.org/10.5281/zenodo.3625687")
+
+
+def base_params(corpus: str, steps: int, run_dir: Path) -> dict:
+    """params.yaml + configs/grid_s1.yaml + the shipped front end, outputs under ``run_dir``."""
+    shipped = yaml.safe_load((ROOT / "params.yaml").read_text())
+    tree = yaml.safe_load((ROOT / "params.yaml").read_text())
+    for section, values in yaml.safe_load((ROOT / "configs" / "grid_s1.yaml").read_text()).items():
+        tree[section].update(values or {})
+    tree["data"]["videos"] = corpus
+    for stage, _ in PREPROCESS:
+        tree[stage]["out"] = str(run_dir / "store" / f"{stage}.zarr")
+    tree["train"].update({k: shipped["train"][k] for k in FRONT_END_KEYS}, baselines=False, steps=steps,
+                         out=str(run_dir / "base_shipped" / "model"),
+                         metrics=str(run_dir / "base_shipped" / "train.json"),
+                         plots=str(run_dir / "base_shipped" / "train_loss.csv"))
+    return as_dict(parse(tree, "bench/shipped_base.py"))
+
+
+def run(module: str, params_file: Path) -> float:
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", module, "--params", str(params_file)], cwd=ROOT, check=True)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--corpus", default="../shared/data/grid_s1/video", help="GRID s1 videos (default: ../shared)")
+    ap.add_argument("--steps", type=int, default=6300, help="optimizer steps (default 6300 = 300 epochs of GRID s1)")
+    ap.add_argument("--run-dir", type=Path, default=ROOT / "runs" / "grid_s1", help="stores and training outputs")
+    ap.add_argument("--out", type=Path, default=ROOT / "models" / "base", help="the shipped folder to write")
+    a = ap.parse_args()
+    a.run_dir.mkdir(parents=True, exist_ok=True)
+    params = base_params(a.corpus, a.steps, a.run_dir.resolve())
+    pfile = a.run_dir / "params_base.yaml"
+    pfile.write_text(yaml.safe_dump(params, sort_keys=False))
+    for stage, module in PREPROCESS:
+        if Path(params[stage]["out"]).exists():
+            print(f"== {stage}: {params[stage]['out']} exists, kept", flush=True)
+            continue
+        print(f"== {stage}: {run(module, pfile):.0f} s", flush=True)
+    print(f"== train: {run('stages.train.train', pfile):.0f} s", flush=True)
+    model = Path(params["train"]["out"])
+    tmp = a.out.with_name(a.out.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for name in MODEL_FILES:
+        shutil.copy(model / name, tmp / name)
+    shutil.copy(params["train"]["metrics"], tmp / "train_metrics.json")
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    write_manifest(tmp, dict(corpus="GRID s1 (900 clips, 45 min of read sentences)", licence=LICENCE,
+                             recipe="python bench/shipped_base.py", steps=a.steps, commit=commit,
+                             date=datetime.date.today().isoformat()))
+    shutil.rmtree(a.out, ignore_errors=True)
+    tmp.rename(a.out)
+    print(f"shipped base written to {a.out}")
+
+
+if __name__ == "__main__":
+    main()

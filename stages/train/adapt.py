@@ -1,0 +1,181 @@
+"""Personalization from a base model: three candidates, scored on the person's held-out part, the best kept.
+
+``lipsynth personalize`` preprocesses a person's footage and calls ``run``. From the base model (the
+shipped ``models/base`` or ``--base``), whose read-out is first re-expressed in the person's mouth
+PCA (``fine_tune.initial_state``: W₀ = s·C_n·C_bᵀ·W_b), it builds
+
+1. ``base`` — the base as it is;
+2. ``readout`` — the base's LSTM with a read-out fitted to the person: ridge regression of the
+   person's PCA coefficients y_t on the base's hidden states h_t, shrunk toward W₀,
+
+       [W b] = argmin Σ_t ‖W h_t + b − y_t‖² + λ ‖W − W₀‖² + λ_b ‖b − b₀‖²,
+
+   λ = α · (training frames), α chosen by leave-one-segment-out cross-validation on the training
+   part (the held-out part is not looked at);
+3. ``fine_tune`` — every weight trained from candidate 2 for ``train.steps`` with early stopping on
+   the held-out part (``patience``) and an L2 pull toward the starting weights, λ_sp Σ ‖θ − θ₀‖²
+   (L2-SP; ``stages/train/lstm.train``'s ``anchor``).
+
+Each candidate's held-out mouth error, its ratio to the mean shape and its opening correlation are
+logged and written to the metrics; the lowest mouth error is kept, so a personalized model is never
+worse than its base on that part. When even the best is worse than the person's mean mouth shape,
+one warning line says so (the model is still written: ``speak`` needs one, and the figures are in
+the metrics).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from pipeline.io.store import atomic_output
+from pipeline.models.delayed_lstm import DelayedLSTM, pick_device, predict_sequence
+from pipeline.models.model_folder import save_model
+from pipeline.models.speaker_bank import export_speaker
+from pipeline.models.training_budget import Budget
+from pipeline.params import Params, as_dict
+from stages.train import fine_tune, lstm
+from stages.train.train import (encoder_settings, feature_normalisation, load_sequences, rest_shape, score,
+                                write_outputs)
+
+log = logging.getLogger("lipsynth.adapt")
+ALPHAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)      # ridge strength per training frame (read-out candidate)
+BIAS_SHRINK = 1e-3                            # λ_b / λ: the bias follows the person's own mean shape
+CANDIDATES = ("base", "readout", "fine_tune")
+
+
+def hidden_states(model: DelayedLSTM, x: np.ndarray, delay: int, device) -> np.ndarray:
+    """(m, hidden) LSTM outputs aligned with the m targets of normalised features x (m, n_in):
+    row i is the state the read-out turns into the shape of step i (step i + delay of the input)."""
+    import torch
+    model.eval()
+    xd = np.concatenate([x, np.zeros((delay, x.shape[1]), np.float32)]).astype(np.float32)
+    with torch.no_grad():
+        h, _ = model.lstm(torch.from_numpy(xd[None]).to(device))
+    return h[0].cpu().numpy()[delay:delay + len(x)].astype(np.float64)
+
+
+def ridge_readout(H: np.ndarray, Y: np.ndarray, W0: np.ndarray, b0: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """The read-out of the module doc for one λ.
+
+    Parameters
+    ----------
+    H : (n, h) hidden states; Y : (n, k) targets (PCA coefficients, canonical px)
+    W0 : (k, h), b0 : (k,) the read-out shrunk toward; lam : λ (λ_b = BIAS_SHRINK · λ)
+
+    Returns
+    -------
+    W (k, h), b (k,)
+    """
+    n, h = H.shape
+    Ha = np.hstack([H, np.ones((n, 1))])
+    prior = np.hstack([W0, b0[:, None]]).T                                   # (h+1, k)
+    reg = np.full(h + 1, float(lam))
+    reg[-1] *= BIAS_SHRINK
+    A = Ha.T @ Ha + np.diag(reg)
+    Wa = np.linalg.solve(A, Ha.T @ Y + reg[:, None] * prior)
+    return Wa[:-1].T, Wa[-1]
+
+
+def choose_alpha(Hs: list[np.ndarray], Ys: list[np.ndarray], W0, b0, alphas=ALPHAS) -> tuple[float, dict]:
+    """α of the read-out by leave-one-sequence-out squared error over the training sequences
+    (each a segment of the footage); with one sequence, the middle α. Returns (α, {α: cv error})."""
+    n = sum(len(h) for h in Hs)
+    if len(Hs) < 2:
+        return alphas[len(alphas) // 2], {}
+    errors = {}
+    for a in alphas:
+        se = 0.0
+        for k in range(len(Hs)):
+            H = np.concatenate([h for i, h in enumerate(Hs) if i != k])
+            Y = np.concatenate([y for i, y in enumerate(Ys) if i != k])
+            W, b = ridge_readout(H, Y, W0, b0, a * n)
+            se += float(((Hs[k] @ W.T + b - Ys[k]) ** 2).sum())
+        errors[a] = se / n
+    return min(errors, key=errors.get), errors
+
+
+def candidate_models(init: dict, data: dict, mean, std, p, delay: int, device, anchor: float):
+    """The three candidates as {name: DelayedLSTM} (module doc) and notes on how each was made."""
+    import torch
+    norm = lambda s: (((s["x"] - mean) / std).astype(np.float32), s["y"].astype(np.float64), s["ok"])
+    train_seqs = [norm(s) for s in data["train"]]
+    n_in, k = train_seqs[0][0].shape[1], train_seqs[0][1].shape[1]
+    base = DelayedLSTM(n_in, init["hidden"], k, init["layers"])
+    base.load_state_dict(init["state"])
+    base = base.to(device).eval()
+    Hs = [hidden_states(base, x, delay, device)[ok] for x, _, ok in train_seqs]
+    Ys = [y[ok] for _, y, ok in train_seqs]
+    W0, b0 = init["state"]["out.weight"].numpy().astype(np.float64), init["state"]["out.bias"].numpy().astype(np.float64)
+    alpha, cv = choose_alpha(Hs, Ys, W0, b0)
+    W, b = ridge_readout(np.concatenate(Hs), np.concatenate(Ys), W0, b0, alpha * sum(len(h) for h in Hs))
+    state = {kk: v.clone() for kk, v in init["state"].items()}
+    state["out.weight"], state["out.bias"] = torch.from_numpy(W.astype(np.float32)), torch.from_numpy(b.astype(np.float32))
+    readout = DelayedLSTM(n_in, init["hidden"], k, init["layers"])
+    readout.load_state_dict(state)
+    readout = readout.to(device).eval()
+    log.info("read-out candidate: ridge α = %g per frame (leave-one-segment-out error %s)", alpha,
+             ", ".join(f"{a:g}: {e:.3f}" for a, e in cv.items()) or "— one training segment")
+    f32 = lambda s: (((s["x"] - mean) / std).astype(np.float32), s["y"].astype(np.float32), s["ok"])
+    budget = Budget(p.steps, p.val_every, p.patience or 5, p.min_delta)
+    tuned, history, kept = lstm.train([f32(s) for s in data["train"]], [f32(s) for s in data["val"]],
+                                      replace(p, fine_tune="all"), delay, device, seed=p.seed, desc="fine-tune",
+                                      budget=budget, init=dict(state=state, hidden=init["hidden"],
+                                                               layers=init["layers"], anchor=anchor))
+    notes = dict(readout=dict(alpha=alpha, cv_error=cv),
+                 fine_tune=dict(anchor=anchor, steps_run=history[-1]["step"], step_kept=kept, history=history))
+    return dict(base=base, readout=readout, fine_tune=tuned), notes
+
+
+def run(params: Params, base_folder: str, anchor: float = 1e-3) -> dict:
+    """Personalize from ``base_folder`` on the stores of ``params`` (ingest, pca, whisper/phonetic);
+    write the kept model (with the person's speaker) to ``train.out`` and the metrics to
+    ``train.metrics``. Returns the metrics."""
+    t0 = time.perf_counter()
+    p = params.train
+    data, basis, pattrs = load_sequences(params.ingest.out, params.pca.out, p.features, params.phonetic.out,
+                                         params.whisper.out)
+    device = pick_device(p.device)
+    feature_normalisation(data, p.feature_norm, p.features)             # utterance CMVN in place when the base used it
+    encoder = encoder_settings(p.features, params.whisper.out)
+    init = fine_tune.initial_state(base_folder, p.features, encoder, basis, pattrs["iod_px"], device)
+    mean, std = init["feature_mean"], init["feature_std"]
+    delay = int(init["base_config"]["delay"])
+    models, notes = candidate_models(init, data, mean, std, p, delay, device, anchor)
+    own = data["train"]
+    mean_shape = np.concatenate([s["y"][s["ok"]] for s in own]).mean(0)
+    baseline = score([np.tile(mean_shape, (len(s["x"]), 1)) for s in data["val"]], data, basis, pattrs["iod_px"])
+    figures = {}
+    for name, model in models.items():
+        preds = [predict_sequence(model, ((s["x"] - mean) / std).astype(np.float32), delay, device) for s in data["val"]]
+        figures[name] = score(preds, data, basis, pattrs["iod_px"])
+        figures[name]["ratio_to_mean_shape"] = figures[name]["mouth_error_px"] / baseline["mouth_error_px"]
+        log.info("candidate %-9s held-out mouth error %.3f px (%.2f %% IOD), ratio to the mean shape %.2f, opening "
+                 "correlation %.2f", name, figures[name]["mouth_error_px"], figures[name]["mouth_error_iod_pct"],
+                 figures[name]["ratio_to_mean_shape"], figures[name]["median_opening_corr"])
+    chosen = min(CANDIDATES, key=lambda c: figures[c]["mouth_error_px"])
+    log.info("kept: %s", chosen)
+    if figures[chosen]["ratio_to_mean_shape"] >= 1.0:
+        log.warning("the personalized model is worse than the person's mean mouth shape on the held-out part "
+                    "(ratio %.2f): their tracked lips follow the audio too little to learn from this footage",
+                    figures[chosen]["ratio_to_mean_shape"])
+    model = models[chosen].cpu()
+    metrics = dict(model="lstm", features=p.features, delay_steps=delay, base=str(base_folder), chosen=chosen,
+                   candidates=figures, adaptation=notes, val=figures[chosen], baseline_mean_shape=baseline,
+                   ratio_to_mean_shape=figures[chosen]["ratio_to_mean_shape"])
+    rest = rest_shape(own, params.ingest.out)
+    with atomic_output(p.out) as tmp:
+        save_model(tmp, model, dict(model="lstm", delay=delay, hidden=model.lstm.hidden_size,
+                                    layers=model.lstm.num_layers, n_features=int(mean.shape[0]),
+                                    n_components=int(basis["components"].shape[0]), feature_rate=100.0,
+                                    feature_norm=p.feature_norm, features=p.features, params=as_dict(p),
+                                    encoder=encoder, personalized=dict(base=str(base_folder), chosen=chosen)),
+                   mean, std, basis, pattrs, rest)
+        metrics["speaker"] = export_speaker(tmp, params.ingest.out, params.landmarks.out, params.frontalize.out,
+                                            p.bank_frames, p.identity_frames)
+    curves = {"fine_tune": notes["fine_tune"].pop("history")}
+    write_outputs(metrics, curves, p)
+    metrics["seconds"] = time.perf_counter() - t0
+    return metrics
