@@ -37,7 +37,7 @@ COMMANDS = {
 def usage() -> str:
     lines = ["usage: lipsynth COMMAND [options]   (lipsynth COMMAND --help for details)", "", "commands:"]
     lines += [f"  {name:<18} {desc}" for name, (_, desc) in COMMANDS.items()]
-    lines += ["", "The whole pipeline: dvc repro   (params in params.yaml; see README.md)"]
+    lines += ["", "The whole pipeline: dvc repro   (params in params.yaml; see docs/)"]
     return "\n".join(lines)
 
 

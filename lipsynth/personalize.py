@@ -64,8 +64,8 @@ def cut_footage(videos: list[Path], seconds: float, folder: Path, pool_name: str
     for v in videos:
         out += cut_video(v, seconds, folder, stem=pool_name, first_index=len(out), min_segments=1)
     if len(out) < 2:
-        raise LipsynthError(f"{', '.join(map(str, videos))}: {sum(durations):.1f} s of footage in all: too short to hold "
-                            f"part out (needs at least {1.5 * seconds:g} s, or several clips)")
+        raise LipsynthError(f"{', '.join(map(str, videos))}: {sum(durations):.1f} s of footage in all: too short to split "
+                            f"into training and held-out parts (needs at least {1.5 * seconds:g} s, or several clips)")
     log.info("%d clips too short to split on their own: pooled as %s_s000…%s_s%03d in the order given",
              len(videos), pool_name, pool_name, len(out) - 1)
     return out

@@ -131,7 +131,7 @@ def fit_report(p: Params, target: str) -> dict:
 
 def front_end_advice(config: dict) -> str:
     """Which front end suits audio far from the training voice, for a model with ``config``
-    (measured by bench/cross_speaker.py on GRID s1 models, see the README)."""
+    (measured by bench/cross_speaker.py on GRID s1 models, see docs/front_ends.md)."""
     features = config.get("features", "mfcc")
     if features == "whisper":
         return "this model's front end (Whisper's encoder) was trained on many voices; lip sync on far voices may still be weaker"

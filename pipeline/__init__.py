@@ -1,5 +1,5 @@
 """lipsynth's shared library — the bottom layer. It imports no stage and no application
-(``stages/`` and ``lipsynth/`` build on it; see the README's "Architecture").
+(``stages/`` and ``lipsynth/`` build on it; see docs/index.md, "Architecture").
 
 Rooms, lowest first (a module imports its own room and lower rooms only; ``tests/test_layers.py``):
 

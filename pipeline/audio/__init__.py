@@ -1,2 +1,2 @@
 """Audio → per-frame features. ``front_ends`` names what a model reads (``train.features``); a new
-front end is a module here plus a name in ``front_ends`` (README "Adding an audio front end")."""
+front end is a module here plus a name in ``front_ends`` (docs/extending.md)."""

@@ -51,7 +51,7 @@ def security_for(cluster):
         return security
     if sec.require_encryption and address and address not in _OWN_CLUSTERS:
         raise LipsynthError(f"cluster.address {address!r} is not encrypted and cluster.security.require_encryption "
-                            "is set: use a tls:// scheduler (README: Running on a real cluster)")
+                            "is set: use a tls:// scheduler (docs/cluster.md)")
     return None
 
 

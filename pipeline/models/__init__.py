@@ -1,3 +1,3 @@
 """Audio → mouth-shape models: the mouth PCA space, each family's network and inference, the model
 folder (save/load/check per family), ensembles, the speaker bank, and ``mouth_prediction`` — the
-one interface (``predict_mouth``) every family answers (README "Adding a model family")."""
+one interface (``predict_mouth``) every family answers (docs/extending.md)."""
