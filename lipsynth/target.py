@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import ParameterError
+from pipeline.errors import LipsynthError, ParameterError
 from pipeline.io.parallel import IN_PROCESS, SharedCluster, client_address, client_for
 from pipeline.params import Params, as_dict
 
@@ -122,7 +122,22 @@ def landmarked_target(video: Path, params: Params, cache: Path, shared: SharedCl
     with (shared.client() if shared else client_for(p.cluster)) as client:      # one cluster for both stages
         # one video is one ingest task: it runs here, while the workers start (and warm up)
         run.cluster.address = IN_PROCESS
-        ingest.run(run, p.ingest.out, require_audio=False)       # the new speech replaces its audio
-        run.cluster.address = client_address(client)
-        landmarks.run(run, p.ingest.out, p.landmarks.out)
+        try:
+            ingest.run(run, p.ingest.out, require_audio=False)       # the new speech replaces its audio
+            run.cluster.address = client_address(client)
+            landmarks.run(run, p.ingest.out, p.landmarks.out)
+        except LipsynthError as exc:
+            raise LipsynthError(without_training_hints(str(exc))) from None
     return p
+
+
+TRAINING_HINTS = (" (set data.on_bad_input: skip to leave such videos out)",
+                  " — set data.on_bad_input: skip to leave it out")
+
+
+def without_training_hints(message: str) -> str:
+    """A stage's message for ``speak``: the advice to skip videos of a training corpus (a param
+    ``speak`` does not have) removed."""
+    for hint in TRAINING_HINTS:
+        message = message.replace(hint, "")
+    return message

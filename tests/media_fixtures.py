@@ -59,3 +59,34 @@ def make_clip(path, n_frames=50, fps=Fraction(25), audio_rate=16000, channels=1,
             for p in a.encode():
                 c.mux(p)
     return path
+
+
+def set_display_rotation(path, degrees: int) -> None:
+    """Rewrite an MP4's track header matrix in place so that players turn the video clockwise by
+    ``degrees`` (90/180/270), as a phone stores portrait video (frames stored sideways)."""
+    import struct
+    data = bytearray(open(path, "rb").read())
+    i = data.find(b"tkhd")
+    assert i > 0 and data[i + 4] == 0, "expected a version-0 tkhd box"
+    one = 0x10000
+    a, b = {90: (0, one), 180: (-one, 0), 270: (0, -one)}[degrees]
+    # [a b 0; c d 0; 0 0 1] with c = -b, d = a (a rotation), 2.30 fixed point in the last column
+    data[i + 44:i + 80] = struct.pack(">9i", a, b, 0, -b, a, 0, 0, 0, 0x40000000)
+    open(path, "wb").write(bytes(data))
+
+
+def make_anamorphic_clip(path, frames, sar=Fraction(2, 1), fps=Fraction(25)):
+    """Write ``frames`` squeezed horizontally by ``sar`` with that sample aspect ratio in the stream."""
+    import cv2
+    h, w = frames.shape[1:3]
+    narrow = max(2, int(round(w / sar / 2)) * 2)
+    with av.open(str(path), "w") as c:
+        v = c.add_stream("libx264", rate=fps)
+        v.width, v.height, v.pix_fmt = narrow, h, "yuv420p"
+        v.codec_context.sample_aspect_ratio = sar
+        for img in frames:
+            for p in v.encode(av.VideoFrame.from_ndarray(cv2.resize(img, (narrow, h), interpolation=cv2.INTER_AREA),
+                                                         format="rgb24")):
+                c.mux(p)
+        for p in v.encode():
+            c.mux(p)

@@ -561,9 +561,34 @@ def test_speak_refuses_a_target_without_a_face_and_keeps_the_old_output(project,
     assert r.returncode == 2, r.stderr
     err = r.stderr.strip().splitlines()
     assert err[-1].startswith("lipsynth: error: ") and str(noface) in err[-1] and "face" in err[-1], r.stderr
+    assert "on_bad_input" not in err[-1], err[-1]                 # speak's message names no training parameter
     assert [e for e in err if e.startswith("lipsynth: error")] == [err[-1]]
     assert out.read_bytes() == b"previous result"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "result.mp4", "wall.mp4"]
+
+
+@pytest.mark.slow
+def test_speak_into_a_phone_video_stored_sideways(project, tmp_path):
+    """A portrait phone video: frames stored turned a quarter counter-clockwise, a display rotation
+    of 90° in the track header. speak finds the face and its output plays upright like the input."""
+    from pipeline.io import media
+    from tests.media_fixtures import set_display_rotation
+    source = project / "data" / "synthetic_speaker" / "speaker_03.mp4"
+    info = media.probe(source)
+    phone = tmp_path / "phone.mp4"
+    audio, _ = media.read_audio(source, 48000)
+    media.write_video(phone, (np.rot90(f, 1) for _, f in media.iter_frames(source)), info.fps, audio, 48000)
+    set_display_rotation(phone, 90)
+    shown = media.probe(phone)
+    assert (shown.width, shown.height) == (info.width, info.height)        # plays upright
+    out = tmp_path / "out.mp4"
+    r = speak(project, tmp_path, "--audio", source, "--target", phone, "--out", out, "--no-retime")
+    assert r.returncode == 0, r.stderr[-2000:]
+    result = media.probe(out)
+    assert (result.width, result.height) == (info.width, info.height)
+    _, first = next(media.iter_frames(out))
+    _, original = next(media.iter_frames(source))
+    assert np.abs(first.astype(float) - original).mean() < 10                # upright, the same picture
 
 
 @pytest.mark.slow

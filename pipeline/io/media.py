@@ -2,6 +2,11 @@
 
 All times are in seconds on the container's clock; audio is returned aligned to the first
 video frame so that sample 0 is heard when frame 0 is shown.
+
+Frames come out as players show them: a display rotation (a phone's portrait video: the
+display matrix, 90/180/270°) is applied, and non-square pixels (a sample aspect ratio other
+than 1, as DV and broadcast sources store them) are resampled to square ones along the width.
+``probe`` reports that displayed size.
 """
 from __future__ import annotations
 
@@ -35,6 +40,52 @@ class VideoInfo:
     audio_channels: int | None
 
 
+@dataclass(frozen=True)
+class Display:
+    """How a stream's decoded frames become what players show: ``turns`` clockwise quarter turns,
+    then the width scaled by ``sar`` (sample aspect ratio) to square pixels."""
+    turns: int = 0
+    sar: Fraction = Fraction(1)
+
+    @property
+    def identity(self) -> bool:
+        return self.turns == 0 and self.sar == 1
+
+    def size(self, width: int, height: int) -> tuple[int, int]:
+        """(width, height) shown for a coded (width, height)."""
+        w = square_width(width, self.sar)
+        return (height, w) if self.turns % 2 else (w, height)
+
+
+MAX_SIDE = 4320                  #: frames whose displayed long side exceeds this (8K) are refused
+
+
+def square_width(width: int, sar: Fraction) -> int:
+    """The width (px, even) of a row of ``width`` samples of aspect ``sar`` in square pixels."""
+    return width if sar == 1 else max(2, int(round(width * sar / 2)) * 2)
+
+
+def display_of(frame: av.VideoFrame, stream, path) -> Display:
+    """The display transform of a decoded frame of ``stream`` (the frame's DISPLAYMATRIX side data,
+    the stream's sample aspect ratio). Raises BadInputError for a rotation that is not a multiple of 90°."""
+    angle = -float(frame.rotation or 0)                    # FFmpeg: counter-clockwise; players turn it back
+    if abs(angle / 90 - round(angle / 90)) > 1e-3:
+        raise BadInputError(path, f"display rotation of {angle:g}° (only multiples of 90° are supported)")
+    sar = stream.codec_context.sample_aspect_ratio or stream.sample_aspect_ratio
+    sar = Fraction(sar) if sar and sar > 0 else Fraction(1)
+    return Display(int(round(angle / 90)) % 4, sar)
+
+
+def _shown(img: np.ndarray, d: Display, interpolation=cv2.INTER_AREA) -> np.ndarray:
+    """One image (H, W[, C]) or plane as shown: resampled to square pixels, then turned."""
+    if d.sar != 1:
+        w = square_width(img.shape[1], d.sar)
+        img = cv2.resize(img, (w, img.shape[0]), interpolation=cv2.INTER_LINEAR if w > img.shape[1] else interpolation)
+    if d.turns:
+        img = np.ascontiguousarray(np.rot90(img, -d.turns))
+    return img
+
+
 def _open(path) -> av.container.InputContainer:
     path = Path(path)
     if not path.exists():
@@ -59,7 +110,17 @@ def probe(path) -> VideoInfo:
         a = c.streams.audio[0] if c.streams.audio else None
         dur = float(c.duration / av.time_base) if c.duration else (
             float(v.duration * v.time_base) if v.duration else 0.0)
-        return VideoInfo(str(path), v.codec_context.width, v.codec_context.height, float(rate), dur,
+        width, height = v.codec_context.width, v.codec_context.height
+        try:
+            first = next(c.decode(v), None)
+        except av.error.FFmpegError:
+            first = None
+        if first is not None:
+            width, height = display_of(first, v, path).size(first.width, first.height)
+        if max(width, height) > MAX_SIDE:
+            raise BadInputError(path, f"{width}×{height} frames: larger than the {MAX_SIDE}-px long side lipsynth "
+                                      f"processes (8K and above; scale the video down first)")
+        return VideoInfo(str(path), width, height, float(rate), dur,
                          int(v.frames or 0), a is not None, a.codec_context.sample_rate if a else None,
                          a.codec_context.channels if a else None)
 
@@ -98,15 +159,27 @@ def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Itera
         v = c.streams.video[0]
         if keyframes_only:
             v.codec_context.skip_frame = "NONKEY"
+        display = None
         try:
             for frame in c.decode(v):
                 t = float(frame.pts * v.time_base) if frame.pts is not None else float(frame.time or 0.0)
-                if fmt == "yuv":
-                    yield t, yuv_planes(frame)
+                display = display or display_of(frame, v, path)
+                if display.identity:
+                    if fmt == "yuv":
+                        yield t, yuv_planes(frame)
+                    elif fmt == "gray":
+                        yield t, yuv_planes(frame)[0]
+                    else:
+                        yield t, np.ascontiguousarray(frame.to_ndarray(format=fmt))
+                elif fmt == "yuv":
+                    y, u, w = yuv_planes(frame)
+                    y = _shown(y, display)
+                    h2, w2 = (y.shape[0] + 1) // 2, (y.shape[1] + 1) // 2
+                    yield t, (y, *(cv2.resize(_shown(q, display), (w2, h2), interpolation=cv2.INTER_AREA) for q in (u, w)))
                 elif fmt == "gray":
-                    yield t, yuv_planes(frame)[0]
+                    yield t, _shown(yuv_planes(frame)[0], display)
                 else:
-                    yield t, np.ascontiguousarray(frame.to_ndarray(format=fmt))
+                    yield t, _shown(np.ascontiguousarray(frame.to_ndarray(format=fmt)), display)
         except av.error.FFmpegError as exc:
             raise BadInputError(path, f"video stream is corrupt ({exc})") from None
 

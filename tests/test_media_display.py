@@ -1,0 +1,73 @@
+"""Frames as players show them: display rotation (phone video) and sample aspect ratio (anamorphic)."""
+from fractions import Fraction
+
+import numpy as np
+import pytest
+
+from pipeline.errors import BadInputError
+from pipeline.io import media
+from tests.media_fixtures import face_frames, make_anamorphic_clip, make_clip, set_display_rotation
+
+
+def marked_frames(n=6, size=(96, 64)):
+    """Frames with a white block in the top-left corner: where it lands tells the orientation."""
+    frames = np.zeros((n, size[1], size[0], 3), np.uint8)
+    frames[:, :16, :24] = 255
+    return frames
+
+
+def corner_of(img: np.ndarray) -> str:
+    g = img if img.ndim == 2 else img.mean(-1)
+    h, w = g.shape
+    quads = {"top-left": g[:h // 2, :w // 2], "top-right": g[:h // 2, w // 2:],
+             "bottom-left": g[h // 2:, :w // 2], "bottom-right": g[h // 2:, w // 2:]}
+    return max(quads, key=lambda k: quads[k].mean())
+
+
+@pytest.mark.parametrize("degrees, corner", [(90, "top-right"), (180, "bottom-right"), (270, "bottom-left")])
+def test_a_rotated_clip_is_decoded_upright_in_every_format(tmp_path, degrees, corner):
+    clip = tmp_path / "phone.mp4"
+    make_clip(clip, n_frames=6, frames=marked_frames())
+    set_display_rotation(clip, degrees)
+    info = media.probe(clip)
+    assert (info.width, info.height) == ((64, 96) if degrees % 180 else (96, 64))
+    _, rgb = next(media.iter_frames(clip))
+    _, grey = next(media.iter_frames(clip, "gray"))
+    _, (y, u, v) = next(media.iter_frames(clip, "yuv"))
+    assert rgb.shape[:2] == grey.shape == y.shape == (info.height, info.width)
+    assert u.shape == v.shape == ((info.height + 1) // 2, (info.width + 1) // 2)
+    assert corner_of(rgb) == corner_of(grey) == corner_of(y) == corner, degrees
+
+
+def test_an_unrotated_clip_is_untouched(tmp_path):
+    clip = tmp_path / "plain.mp4"
+    frames = marked_frames()
+    make_clip(clip, n_frames=6, frames=frames)
+    _, rgb = next(media.iter_frames(clip))
+    assert rgb.shape == frames.shape[1:] and corner_of(rgb) == "top-left"
+
+
+def test_an_anamorphic_clip_is_resampled_to_square_pixels(tmp_path):
+    clip = tmp_path / "dv.mp4"
+    frames = face_frames(4, size=(320, 256))
+    make_anamorphic_clip(clip, frames, sar=Fraction(2, 1))
+    info = media.probe(clip)
+    assert (info.width, info.height) == (320, 256)
+    _, rgb = next(media.iter_frames(clip))
+    _, (y, u, _) = next(media.iter_frames(clip, "yuv"))
+    assert rgb.shape == (256, 320, 3) and y.shape == (256, 320) and u.shape == (128, 160)
+    assert np.abs(rgb.astype(float) - frames[0]).mean() < 12          # the face as it was drawn, not squeezed
+
+
+def test_a_rotation_that_is_not_a_quarter_turn_is_one_clear_error(tmp_path):
+    import struct
+    clip = tmp_path / "tilted.mp4"
+    make_clip(clip, n_frames=4, frames=marked_frames(4))
+    data = bytearray(clip.read_bytes())
+    i = data.find(b"tkhd")
+    c, s = int(0x10000 * np.cos(np.radians(45))), int(0x10000 * np.sin(np.radians(45)))
+    data[i + 44:i + 80] = struct.pack(">9i", c, s, 0, -s, c, 0, 0, 0, 0x40000000)
+    clip.write_bytes(bytes(data))
+    with pytest.raises(BadInputError, match="display rotation of -?45° .*multiples of 90°") as e:
+        media.probe(clip)
+    assert str(clip) in str(e.value)
