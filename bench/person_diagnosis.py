@@ -111,17 +111,23 @@ def yardstick(make: str, clips: list[str], json_path: Path) -> dict:
                        cwd=ROOT, capture_output=True, text=True)
     if not json_path.is_file():
         raise SystemExit(f"yardstick wrote nothing (rc {r.returncode}): {r.stderr.strip()[-500:]}")
-    res = json.loads(json_path.read_text())
+    return yardstick_summary(json.loads(json_path.read_text()))
+
+
+def yardstick_summary(res: dict) -> dict:
     s = res["summary"]
     return {k: s.get(k) for k in ("err_ratio", "corr", "corr_best", "within_1_frame", "sharp", "flicker", "ok", "clips")} | \
         {"errors": [r["error"] for r in res["rows"] if "error" in r]}
 
 
-def diagnose(name: str, paths: list[str], base: str | None, work_root: Path, steps: int) -> dict:
+def diagnose(name: str, paths: list[str], base: str | None, work_root: Path, steps: int, reuse: bool) -> dict:
     py = sys.executable
     work, model = work_root / name, work_root / name / "model"
     seg = segment_seconds(paths)
     t0 = time.perf_counter()
+    if reuse and (work / "w" / "summary.json").is_file() and model.is_dir():
+        print(f"== {name}: personalized model found in {work}, reused", flush=True)
+        return measure(name, paths, work, model, seg, json.loads((work / "w" / "summary.json").read_text())["seconds"], reuse)
     cmd = [py, "-m", "lipsynth.cli", "personalize", *paths, "--out", str(model), "--work", str(work / "w"),
            "--segment-seconds", str(seg), "--steps", str(steps)] + (["--base", base] if base else [])
     work.mkdir(parents=True, exist_ok=True)
@@ -130,11 +136,16 @@ def diagnose(name: str, paths: list[str], base: str | None, work_root: Path, ste
     if r.returncode:
         return dict(name=name, videos=paths, error=(r.stderr.strip().splitlines() or ["?"])[-1])
     print(r.stdout.strip(), flush=True)
+    return measure(name, paths, work, model, seg, round(time.perf_counter() - t0, 1), reuse)
+
+
+def measure(name: str, paths: list[str], work: Path, model: Path, seg: float, seconds: float, reuse: bool) -> dict:
+    py = sys.executable
     summary = json.loads((work / "w" / "summary.json").read_text())
     store = work / "w" / "store"
     clips = held_out(str(store / "ingest.zarr"))
     row = dict(name=name, videos=[str(p) for p in paths], segment_seconds=seg, held_out=[Path(c).name for c in clips],
-               personalize_seconds=round(time.perf_counter() - t0, 1), chosen=summary["chosen"],
+               personalize_seconds=seconds, tracker_floor_corr=summary.get("tracker_floor_corr"), chosen=summary["chosen"],
                in_store={k: dict(ratio=round(v["ratio_to_mean_shape"], 3), corr=round(v["median_opening_corr"], 3))
                          for k, v in (summary["candidates"] or {}).items()},
                speech_share=speech_share(str(store / "ingest.zarr"), str(store / "pca.zarr")))
@@ -147,7 +158,11 @@ def diagnose(name: str, paths: list[str], base: str | None, work_root: Path, ste
                   f"--cache {cache}",
     }
     for key, make in rows.items():
-        row[key] = yardstick(make, clips, work / f"{key}.json")
+        done = work / f"{key}.json"
+        if reuse and done.is_file() and json.loads(done.read_text())["summary"].get("ok"):
+            row[key] = yardstick_summary(json.loads(done.read_text()))
+        else:
+            row[key] = yardstick(make, clips, done)
         print(f"{name} {key}: {row[key]}", flush=True)
     return row
 
@@ -198,12 +213,13 @@ def main() -> None:
     ap.add_argument("--base", help="the base to personalize from (default: personalize's, the shipped models/base)")
     ap.add_argument("--steps", type=int, default=600, help="personalize --steps (default 600)")
     ap.add_argument("--work", type=Path, default=ROOT / "runs" / "diagnosis")
+    ap.add_argument("--reuse", action="store_true", help="keep a person's model and scored rows from an earlier run")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "person_diagnosis.json")
     ap.add_argument("--table", type=Path, default=ROOT / "docs" / "person_diagnosis.md")
     a = ap.parse_args()
     if not YARDSTICK.is_file():
         raise SystemExit(f"{YARDSTICK}: the yardstick is not there (../shared/tools beside the project)")
-    rows = [diagnose(*videos_of(spec), a.base, a.work, a.steps) for spec in a.people]
+    rows = [diagnose(*videos_of(spec), a.base, a.work, a.steps, a.reuse) for spec in a.people]
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(dict(commit=commit, date=datetime.datetime.now().isoformat(timespec="minutes"),

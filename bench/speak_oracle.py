@@ -31,14 +31,13 @@ def oracle_run(blend: float):
     """A `synthesize.run` whose prediction is replaced by the target's tracked lips."""
     real_run, real_predict = synthesize.run, synthesize.predict_mouth
 
-    def run(params, out, stores, entry):
+    def run(params, out, stores, entry, mouth=None):
         fr = stores["frontalize"]
         sl = slice(entry["first_frame"], entry["first_frame"] + entry["n_frames"])
         tracked = np.asarray(fr["frontal_landmarks"][sl], np.float64)[:, LIP_POINTS]
         ok = synthesize.usable(fr, stores["landmarks"], entry) - entry["first_frame"]
 
-        def predict(*args, **kw):
-            mouth = real_predict(*args, **kw)
+        def oracle(mouth):
             lips = mouth["lip_points"].astype(np.float64)
             n = min(len(lips), len(tracked))
             good = np.zeros(len(lips), bool)
@@ -47,7 +46,9 @@ def oracle_run(blend: float):
             print(f"oracle: {good.sum()} of {len(lips)} frames use the tracked lips (blend {blend})")
             return dict(mouth, lip_points=lips.astype(np.float32))
 
-        synthesize.predict_mouth = predict
+        if mouth is not None:                   # speak predicted the shapes already (during preprocessing)
+            return real_run(params, out, stores, entry, mouth=oracle(mouth))
+        synthesize.predict_mouth = lambda *args, **kw: oracle(real_predict(*args, **kw))
         try:
             return real_run(params, out, stores, entry)
         finally:
