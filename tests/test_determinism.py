@@ -4,7 +4,7 @@ long) folders gives identical DVC hashes for every stage's outputs — nothing m
 import pytest
 import yaml
 
-from tests.test_dvc_pipeline import copy_project, dvc
+from tests.helpers import copy_project, dvc
 
 TINY = {
     "synthetic_speaker": {"n_videos": 3, "seconds_per_video": 4.0},

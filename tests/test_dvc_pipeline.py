@@ -18,35 +18,7 @@ import zarr
 
 from pipeline.params import load_params
 from tests.conftest import ROOT
-
-
-def dvc(proj, *args):
-    env = dict(os.environ, PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"])
-    r = subprocess.run([sys.executable, "-m", "dvc", *args], cwd=proj, env=env, capture_output=True, text=True,
-                       timeout=2400)        # a whole repro: ~5 min alone on 2 cores, far more on a loaded machine
-    assert r.returncode == 0, f"dvc {' '.join(args)} failed:\n{r.stdout}\n{r.stderr}"
-    return r.stdout + r.stderr
-
-
-def copy_project(proj, overrides: dict):
-    """A git + DVC project in ``proj`` with this project's code, dvc.yaml and params.yaml (its
-    sections updated with ``overrides``); nothing is run yet."""
-    proj.mkdir(parents=True, exist_ok=True)
-    for name in ("pipeline", "stages", "lipsynth"):
-        shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("dvc.yaml", ".dvcignore"):
-        shutil.copy(ROOT / name, proj / name)
-    shutil.copytree(ROOT / "models" / "base", proj / "models" / "base")      # the shipped base, as a clone has it
-    (proj / ".dvc").mkdir()
-    shutil.copy(ROOT / ".dvc" / "config", proj / ".dvc" / "config")
-    params = yaml.safe_load((ROOT / "params.yaml").read_text())
-    for section, values in overrides.items():
-        params[section].update(values)
-    (proj / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    subprocess.run(["git", "init", "-q"], cwd=proj, check=True)
-    subprocess.run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-q", "--allow-empty", "-m", "x"],
-                   cwd=proj, check=True)
-    return proj
+from tests.helpers import copy_project, dvc, dvc_status
 
 
 @contextlib.contextmanager
@@ -240,7 +212,7 @@ def test_render_mesh_stage_wrote_the_karras_face(project):
 @pytest.mark.slow
 def test_karras_param_reruns_only_karras_stages(project):
     with edited_params(project, "karras", "val_every", 7):
-        status = json.loads(dvc(project, "status", "--json").strip().splitlines()[-1])
+        status = dvc_status(project)
     # render_mesh depends on models/karras, not on the karras params: it reruns when the model changes
     assert set(status) == {"train_karras", "report"}, status
     assert "up to date" in dvc(project, "status")
@@ -276,7 +248,7 @@ def test_phonetic_store_and_a_phonetic_model(project, tmp_path):
         rows = phones[v["first_mfcc"]:v["first_mfcc"] + v["n_mfcc"]]
         assert (rows.sum(1) == 1).all(), v["name"]
     with edited_params(project, "train", "features", "mfcc+phonetic"):
-        status = set(json.loads(dvc(project, "status", "--json").strip().splitlines()[-1]))
+        status = set(dvc_status(project))
     assert "train" in status and not {"ingest", "phonetic", "pca", "train_brand", "train_karras"} & status, status
     params = yaml.safe_load((project / "params.yaml").read_text())
     params["train"].update(features="mfcc+phonetic", steps=15, baselines=False, out=str(tmp_path / "m"),
@@ -311,7 +283,7 @@ def test_whisper_store_and_a_whisper_model(project, tmp_path):
         rows = states[v["first_mfcc"]:v["first_mfcc"] + v["n_mfcc"]]
         assert rows.std(0).mean() > 0.05, v["name"]                 # every video's rows written, and moving
     with edited_params(project, "whisper", "window_seconds", 8.0):
-        status = set(json.loads(dvc(project, "status", "--json").strip().splitlines()[-1]))
+        status = set(dvc_status(project))
     # train reads whisper.zarr, so it reruns once whisper has (dvc status flags only stages whose own deps
     # changed); Voice Puppetry computes its voice features from the audio, so its whisper params flag it now
     assert {"whisper", "train_brand"} <= status and "train" not in status, status
@@ -415,7 +387,7 @@ def test_personalize_one_video_split_in_time_from_scratch_and_from_the_shipped_b
 @pytest.mark.slow
 def test_brand_param_reruns_only_train_brand(project):
     with edited_params(project, "brand", "decode", "posterior"):
-        status = json.loads(dvc(project, "status", "--json").strip().splitlines()[-1])
+        status = dvc_status(project)
     assert set(status) == {"train_brand", "report"}, status        # the page shows the brand section
     assert "up to date" in dvc(project, "status")
 
@@ -439,7 +411,7 @@ def test_frontalize_param_reruns_only_frontalize_and_downstream(project):
     old output back from DVC's run cache, so the project is up to date again for the next tests."""
     with edited_params(project, "frontalize", "inpaint_radius",      # + 2: inpainting runs at half resolution
                        yaml.safe_load((project / "params.yaml").read_text())["frontalize"]["inpaint_radius"] + 2.0):
-        status = json.loads(dvc(project, "status", "--json").strip().splitlines()[-1])
+        status = dvc_status(project)
         # dvc status names only the edited stage — and the report, which shows every section's params
         assert set(status) == {"frontalize", "report"}, status
         out = dvc(project, "repro", "frontalize")
@@ -447,7 +419,7 @@ def test_frontalize_param_reruns_only_frontalize_and_downstream(project):
         for stage in ("synthetic_speaker", "ingest", "landmarks"):
             assert f"Running stage '{stage}'" not in out
             assert f"Stage '{stage}' didn't change, skipping" in out
-        downstream = set(json.loads(dvc(project, "status", "--json").strip().splitlines()[-1]))
+        downstream = set(dvc_status(project))
         assert {"pca", "train", "train_brand", "train_karras", "synthesize", "composite"} <= downstream, downstream
         assert not {"synthetic_speaker", "ingest", "landmarks", "frontalize"} & downstream, downstream
     out = dvc(project, "repro", "frontalize")
@@ -657,7 +629,7 @@ def test_preprocessing_hashes_equal_the_committed_dvc_lock(project):
 def test_a_library_change_reruns_exactly_the_stages_that_import_it(project):
     """Code deps are derived from imports: pipeline/video/repeats.py is used by composite only (and by
     evaluate, which runs composite's entry point)."""
-    status = lambda: set(json.loads(dvc(project, "status", "--json").strip().splitlines()[-1]))
+    status = lambda: set(dvc_status(project))
     before = status()
     path = project / "pipeline" / "video" / "repeats.py"
     text = path.read_text()

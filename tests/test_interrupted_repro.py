@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.test_dvc_pipeline import copy_project, dvc
+from tests.helpers import copy_project, dvc
 
 TINY = {"synthetic_speaker": {"n_videos": 3, "seconds_per_video": 4.0},   # 3 videos = 3 landmark tasks
         "cluster": {"n_workers": 1}}                                         # (cluster is no stage's dependency)

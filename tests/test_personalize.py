@@ -5,7 +5,7 @@ import sys
 import pytest
 
 from tests.conftest import ROOT
-from tests.test_speak import one_error_line
+from tests.helpers import one_error_line
 
 
 def personalize(*args):

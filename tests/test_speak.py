@@ -5,17 +5,12 @@ import sys
 import numpy as np
 
 from tests.conftest import ROOT, shared
+from tests.helpers import one_error_line
 
 
 def speak(*args):
     return subprocess.run([sys.executable, "-m", "lipsynth.cli", "speak", *map(str, args)], cwd=ROOT,
                           capture_output=True, text=True, timeout=120)
-
-
-def one_error_line(r):
-    lines = [l for l in r.stderr.strip().splitlines() if l.startswith("lipsynth: error")]
-    assert r.returncode == 2 and len(lines) == 1, r.stderr
-    return lines[0]
 
 
 def test_audio_without_an_audio_track_is_refused_before_preprocessing(tmp_path):
