@@ -11,9 +11,10 @@
    into ``--work`` (default ``runs/personalize/NAME``), with the params of ``--params`` otherwise.
    Footage whose mouth never moves (a photo, a still video) stops here with one line.
 3. Adaptation of the base model (default: the shipped ``models/base``, GRID s1's read speech,
-   hash-checked): the base as is, the base with a read-out fitted to the person, and the base
-   fine-tuned (early stopping, pulled toward its start) are scored on the held-out part and the
-   best is kept (``stages/train/adapt.py``), so the result is never worse there than the base.
+   hash-checked): the base as is, the base with a read-out of its LSTM fitted to the person, a
+   read-out of the encoder states fitted to the person, and a fine-tune (early stopping, pulled
+   toward its start) are scored on the held-out part and the best is kept
+   (``stages/train/adapt.py``), so the result is never worse there than the base.
    ``--base none`` trains from scratch instead (``--steps`` optimizer steps). The model folder
    carries the person's candidate bank, identity and 3D face, so ``lipsynth speak --model
    models/NAME`` animates them.

@@ -38,3 +38,29 @@ def test_cross_validation_prefers_weak_shrinkage_when_the_base_is_wrong_and_stro
     right, errors = choose_alpha(Hs, Ys, W, b)
     assert wrong <= 1e-2 and right >= 1.0, (wrong, right, errors)
     assert set(errors) and all(np.isfinite(list(errors.values())))
+
+
+def test_a_model_with_a_skip_map_adds_it_and_survives_its_folder(tmp_path):
+    import torch
+    from pipeline.models.delayed_lstm import DelayedLSTM, predict_sequence
+    from pipeline.models.model_folder import load_model, save_model
+    torch.manual_seed(0)
+    plain, skip = DelayedLSTM(6, 5, 3), DelayedLSTM(6, 5, 3, skip=True)
+    state = dict(plain.state_dict(), **{"skip.weight": torch.randn(3, 6)})
+    skip.load_state_dict(state)
+    x = np.random.default_rng(0).normal(size=(40, 6)).astype(np.float32)
+    expected = predict_sequence(plain, x, 0, "cpu") + x @ state["skip.weight"].numpy().T
+    np.testing.assert_allclose(predict_sequence(skip, x, 0, "cpu"), expected, atol=1e-5)
+    basis = dict(mean=np.zeros(36), components=np.eye(36)[:3])
+    save_model(tmp_path, skip, dict(model="lstm", delay=0, hidden=5, layers=1, skip=True, n_features=6, n_components=3),
+               np.zeros(6, np.float32), np.ones(6, np.float32), basis, dict(lip_points=list(range(18)), iod_px=60.0))
+    loaded, cfg, _ = load_model(tmp_path)
+    assert cfg["skip"] and loaded.skip is not None
+    np.testing.assert_allclose(predict_sequence(loaded, x, 0, "cpu"), expected, atol=1e-5)
+
+
+def test_inputs_are_aligned_with_their_targets_like_the_hidden_states():
+    from stages.train.adapt import input_states
+    x = np.arange(10, dtype=np.float32)[:, None]
+    np.testing.assert_array_equal(input_states(x, 0)[:, 0], np.arange(10))
+    np.testing.assert_array_equal(input_states(x, 3)[:, 0], [3, 4, 5, 6, 7, 8, 9, 0, 0, 0])   # output t → shape t − 3

@@ -356,7 +356,7 @@ def test_fine_tuning_from_a_model_folder_trains_only_what_it_is_told(project, tm
 @pytest.mark.slow
 def test_personalize_one_video_split_in_time_from_scratch_and_from_the_shipped_base(project, tmp_path):
     """lipsynth personalize on one 10-s video: cut into segments, the end held out (one line says so),
-    preprocessed; from scratch (--base none) and from the shipped base by default: three candidates
+    preprocessed; from scratch (--base none) and from the shipped base by default: four candidates
     scored on the held-out part, the best kept; the figures printed, a speak-ready folder."""
     video = project / "data" / "synthetic_speaker" / "speaker_01.mp4"
     common = [sys.executable, "-m", "lipsynth.cli", "personalize", str(video), "--segment-seconds", "2.5"]
@@ -377,7 +377,7 @@ def test_personalize_one_video_split_in_time_from_scratch_and_from_the_shipped_b
     cfg = json.loads((tmp_path / "tuned" / "config.json").read_text())
     assert tuned["base"] == str(project / "models" / "base") and cfg["personalized"]["base"] == tuned["base"]
     errors = {c: f["mouth_error_px"] for c, f in tuned["candidates"].items()}
-    assert set(errors) == {"base", "readout", "fine_tune"} and tuned["chosen"] == min(errors, key=errors.get), tuned
+    assert set(errors) == {"base", "readout", "encoder_readout", "fine_tune"} and tuned["chosen"] == min(errors, key=errors.get), tuned
     assert tuned["ratio_to_mean_shape"] == tuned["candidates"][tuned["chosen"]]["ratio_to_mean_shape"]
     for c in errors:
         assert f"candidate {c}" in r.stdout, r.stdout

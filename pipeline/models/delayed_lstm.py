@@ -20,17 +20,22 @@ def pick_device(name: str = "auto") -> torch.device:
 
 
 class DelayedLSTM(nn.Module):
-    """LSTM(n_in → hidden) + Linear(hidden → n_out); ``delay`` is carried as metadata."""
+    """LSTM(n_in → hidden) + Linear(hidden → n_out); ``delay`` is carried as metadata.
 
-    def __init__(self, n_in: int = 28, hidden: int = 60, n_out: int = 20, layers: int = 1):
+    ``skip``: a second, bias-free linear map from the input straight to the output, added to the
+    read-out (a person's read-out of the encoder states themselves: ``stages/train/adapt.py``)."""
+
+    def __init__(self, n_in: int = 28, hidden: int = 60, n_out: int = 20, layers: int = 1, skip: bool = False):
         super().__init__()
         self.lstm = nn.LSTM(n_in, hidden, num_layers=layers, batch_first=True)
         self.out = nn.Linear(hidden, n_out)
+        self.skip = nn.Linear(n_in, n_out, bias=False) if skip else None
 
     def forward(self, x: torch.Tensor, state=None):
         """x (B, T, n_in) → (B, T, n_out), new state."""
         h, state = self.lstm(x, state)
-        return self.out(h), state
+        y = self.out(h)
+        return (y if self.skip is None else y + self.skip(x)), state
 
 
 @torch.no_grad()

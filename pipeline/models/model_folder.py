@@ -197,7 +197,7 @@ def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
     if config["n_components"] != k or arrays["feature_mean"].shape != (config["n_features"],):
         raise ModelError(f"{folder}: config sizes ({config['n_features']} features, {config['n_components']} "
                          f"components) do not match the stored arrays")
-    model = DelayedLSTM(config["n_features"], config["hidden"], k, config.get("layers", 1))
+    model = DelayedLSTM(config["n_features"], config["hidden"], k, config.get("layers", 1), bool(config.get("skip", False)))
     try:
         model.load_state_dict(torch.load(folder / "weights.pt", map_location=device, weights_only=True))
     except (RuntimeError, KeyError) as exc:

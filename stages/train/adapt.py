@@ -1,4 +1,4 @@
-"""Personalization from a base model: three candidates, scored on the person's held-out part, the best kept.
+"""Personalization from a base model: four candidates, scored on the person's held-out part, the best kept.
 
 ``lipsynth personalize`` preprocesses a person's footage and calls ``run``. From the base model (the
 shipped ``models/base`` or ``--base``), whose read-out is first re-expressed in the person's mouth
@@ -8,19 +8,22 @@ PCA (``fine_tune.initial_state``: W₀ = s·C_n·C_bᵀ·W_b), it builds
 2. ``readout`` — the base's LSTM with a read-out fitted to the person: ridge regression of the
    person's PCA coefficients y_t on the base's hidden states h_t, shrunk toward W₀,
 
-       [W b] = argmin Σ_t ‖W h_t + b − y_t‖² + λ ‖W − W₀‖² + λ_b ‖b − b₀‖²,
+       [W b] = argmin Σ_t ‖W h_t + b − y_t‖² + λ ‖W − W₀‖² + λ_b ‖b − b₀‖²;
 
-   λ = α · (training frames), α chosen by leave-one-segment-out cross-validation on the training
-   part (the held-out part is not looked at);
-3. ``fine_tune`` — every weight trained from candidate 2 for ``train.steps`` with early stopping on
-   the held-out part (``patience``) and an L2 pull toward the starting weights, λ_sp Σ ‖θ − θ₀‖²
-   (L2-SP; ``stages/train/lstm.train``'s ``anchor``).
+3. ``encoder_readout`` — a ridge read-out of the (normalised) encoder states x_t themselves,
+   y_t ≈ V x_t + b, shrunk toward V = 0 (the model's ``skip`` map; the LSTM's read-out set to 0):
+   what the pretrained encoder says about this person's mouth without the base's recurrence, which
+   learned one read speaker's timing;
+4. ``fine_tune`` — every weight trained from the better of 2 and 3 (by cross-validation error) for
+   ``train.steps``, early stopping on the held-out part (``patience``) and an L2 pull toward the
+   starting weights, λ_sp Σ ‖θ − θ₀‖² (L2-SP; ``stages/train/lstm.train``'s ``anchor``).
 
-Each candidate's held-out mouth error, its ratio to the mean shape and its opening correlation are
-logged and written to the metrics; the lowest mouth error is kept, so a personalized model is never
-worse than its base on that part. When even the best is worse than the person's mean mouth shape,
-one warning line says so (the model is still written: ``speak`` needs one, and the figures are in
-the metrics).
+In 2 and 3, λ = α · (training frames), α chosen by leave-one-segment-out cross-validation on the
+training part (the held-out part is not looked at). Each candidate's held-out mouth error, its ratio
+to the mean shape and its opening correlation are logged and written to the metrics; the lowest
+mouth error is kept, so a personalized model is never worse than its base on that part. When even
+the best is worse than the person's mean mouth shape, one warning line says so (the model is still
+written: ``speak`` needs one, and the figures are in the metrics).
 """
 from __future__ import annotations
 
@@ -43,7 +46,7 @@ from stages.train.train import (encoder_settings, feature_normalisation, load_se
 log = logging.getLogger("lipsynth.adapt")
 ALPHAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)      # ridge strength per training frame (read-out candidate)
 BIAS_SHRINK = 1e-3                            # λ_b / λ: the bias follows the person's own mean shape
-CANDIDATES = ("base", "readout", "fine_tune")
+CANDIDATES = ("base", "readout", "encoder_readout", "fine_tune")
 
 
 def hidden_states(model: DelayedLSTM, x: np.ndarray, delay: int, device) -> np.ndarray:
@@ -97,36 +100,61 @@ def choose_alpha(Hs: list[np.ndarray], Ys: list[np.ndarray], W0, b0, alphas=ALPH
     return min(errors, key=errors.get), errors
 
 
-def candidate_models(init: dict, data: dict, mean, std, p, delay: int, device, anchor: float):
-    """The three candidates as {name: DelayedLSTM} (module doc) and notes on how each was made."""
+def input_states(x: np.ndarray, delay: int) -> np.ndarray:
+    """(m, n_in) inputs aligned like ``hidden_states``: row i is the input step whose output is the
+    shape of step i (the ``skip`` map's pairs)."""
+    xd = np.concatenate([x, np.zeros((delay, x.shape[1]), np.float32)])
+    return xd[delay:delay + len(x)].astype(np.float64)
+
+
+def with_readout(init: dict, n_in: int, k: int, out_w, out_b, skip_w=None) -> tuple[DelayedLSTM, dict]:
+    """The base's LSTM with the given read-out (and ``skip`` map); (model, its state dict)."""
     import torch
+    state = {kk: v.clone() for kk, v in init["state"].items()}
+    state["out.weight"] = torch.from_numpy(np.asarray(out_w, np.float32))
+    state["out.bias"] = torch.from_numpy(np.asarray(out_b, np.float32))
+    if skip_w is not None:
+        state["skip.weight"] = torch.from_numpy(np.asarray(skip_w, np.float32))
+    model = DelayedLSTM(n_in, init["hidden"], k, init["layers"], skip=skip_w is not None)
+    model.load_state_dict(state)
+    return model.eval(), state
+
+
+def candidate_models(init: dict, data: dict, mean, std, p, delay: int, device, anchor: float):
+    """The four candidates as {name: DelayedLSTM} (module doc) and notes on how each was made."""
     norm = lambda s: (((s["x"] - mean) / std).astype(np.float32), s["y"].astype(np.float64), s["ok"])
     train_seqs = [norm(s) for s in data["train"]]
     n_in, k = train_seqs[0][0].shape[1], train_seqs[0][1].shape[1]
-    base = DelayedLSTM(n_in, init["hidden"], k, init["layers"])
-    base.load_state_dict(init["state"])
-    base = base.to(device).eval()
-    Hs = [hidden_states(base, x, delay, device)[ok] for x, _, ok in train_seqs]
-    Ys = [y[ok] for _, y, ok in train_seqs]
     W0, b0 = init["state"]["out.weight"].numpy().astype(np.float64), init["state"]["out.bias"].numpy().astype(np.float64)
-    alpha, cv = choose_alpha(Hs, Ys, W0, b0)
-    W, b = ridge_readout(np.concatenate(Hs), np.concatenate(Ys), W0, b0, alpha * sum(len(h) for h in Hs))
-    state = {kk: v.clone() for kk, v in init["state"].items()}
-    state["out.weight"], state["out.bias"] = torch.from_numpy(W.astype(np.float32)), torch.from_numpy(b.astype(np.float32))
-    readout = DelayedLSTM(n_in, init["hidden"], k, init["layers"])
-    readout.load_state_dict(state)
-    readout = readout.to(device).eval()
-    log.info("read-out candidate: ridge α = %g per frame (leave-one-segment-out error %s)", alpha,
-             ", ".join(f"{a:g}: {e:.3f}" for a, e in cv.items()) or "— one training segment")
+    base, _ = with_readout(init, n_in, k, W0, b0)
+    base = base.to(device)
+    Ys = [y[ok] for _, y, ok in train_seqs]
+    n = sum(len(y) for y in Ys)
+    Hs = [hidden_states(base, x, delay, device)[ok] for x, _, ok in train_seqs]
+    alpha_h, cv_h = choose_alpha(Hs, Ys, W0, b0)
+    W, b = ridge_readout(np.concatenate(Hs), np.concatenate(Ys), W0, b0, alpha_h * n)
+    readout, readout_state = with_readout(init, n_in, k, W, b)
+    Zs = [input_states(x, delay)[ok] for x, _, ok in train_seqs]
+    V0 = np.zeros((k, n_in))
+    alpha_z, cv_z = choose_alpha(Zs, Ys, V0, b0)
+    V, c = ridge_readout(np.concatenate(Zs), np.concatenate(Ys), V0, b0, alpha_z * n)
+    encoder, encoder_state = with_readout(init, n_in, k, np.zeros_like(W0), c, V)
+    for name, alpha, cv in (("read-out", alpha_h, cv_h), ("encoder read-out", alpha_z, cv_z)):
+        log.info("%s candidate: ridge α = %g per frame (leave-one-segment-out error %s)", name, alpha,
+                 ", ".join(f"{a:g}: {e:.3f}" for a, e in cv.items()) or "— one training segment")
+    start = "encoder_readout" if cv_z and cv_h and min(cv_z.values()) < min(cv_h.values()) else "readout"
     f32 = lambda s: (((s["x"] - mean) / std).astype(np.float32), s["y"].astype(np.float32), s["ok"])
     budget = Budget(p.steps, p.val_every, p.patience or 5, p.min_delta)
     tuned, history, kept = lstm.train([f32(s) for s in data["train"]], [f32(s) for s in data["val"]],
                                       replace(p, fine_tune="all"), delay, device, seed=p.seed, desc="fine-tune",
-                                      budget=budget, init=dict(state=state, hidden=init["hidden"],
-                                                               layers=init["layers"], anchor=anchor))
-    notes = dict(readout=dict(alpha=alpha, cv_error=cv),
-                 fine_tune=dict(anchor=anchor, steps_run=history[-1]["step"], step_kept=kept, history=history))
-    return dict(base=base, readout=readout, fine_tune=tuned), notes
+                                      budget=budget,
+                                      init=dict(state=encoder_state if start == "encoder_readout" else readout_state,
+                                                hidden=init["hidden"], layers=init["layers"], anchor=anchor,
+                                                skip=start == "encoder_readout"))
+    notes = dict(readout=dict(alpha=alpha_h, cv_error=cv_h), encoder_readout=dict(alpha=alpha_z, cv_error=cv_z),
+                 fine_tune=dict(start=start, anchor=anchor, steps_run=history[-1]["step"], step_kept=kept,
+                                history=history))
+    return dict(base=base, readout=readout.to(device), encoder_readout=encoder.to(device), fine_tune=tuned), notes
 
 
 def run(params: Params, base_folder: str, anchor: float = 1e-3) -> dict:
@@ -168,7 +196,8 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3) -> dict:
     rest = rest_shape(own, params.ingest.out)
     with atomic_output(p.out) as tmp:
         save_model(tmp, model, dict(model="lstm", delay=delay, hidden=model.lstm.hidden_size,
-                                    layers=model.lstm.num_layers, n_features=int(mean.shape[0]),
+                                    layers=model.lstm.num_layers, skip=model.skip is not None,
+                                    n_features=int(mean.shape[0]),
                                     n_components=int(basis["components"].shape[0]), feature_rate=100.0,
                                     feature_norm=p.feature_norm, features=p.features, params=as_dict(p),
                                     encoder=encoder, personalized=dict(base=str(base_folder), chosen=chosen)),

@@ -92,7 +92,7 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
         model = DelayedLSTM(n_in, p.hidden, n_out, p.layers).to(device)
         trained = list(model.parameters())
     else:
-        model = DelayedLSTM(n_in, init["hidden"], n_out, init["layers"])
+        model = DelayedLSTM(n_in, init["hidden"], n_out, init["layers"], init.get("skip", False))
         model.load_state_dict(init["state"])
         model = model.to(device)
         trained = list(model.out.parameters()) if p.fine_tune == "output" else list(model.parameters())
