@@ -71,3 +71,30 @@ def test_a_photo_whose_mouth_never_moves_is_refused_before_training(tmp_path):
     line = one_error_line(r)
     assert "the mouth barely moves" in line and str(clip) in line, line
     assert not (tmp_path / "m").exists() and not (tmp_path / "w" / "metrics.json").exists()
+
+
+def test_a_base_of_another_family_is_one_line_before_any_work(tmp_path):
+    import json
+    from tests.media_fixtures import make_clip
+    clip = tmp_path / "clip.mp4"
+    make_clip(clip, n_frames=50)
+    base = tmp_path / "brand"
+    base.mkdir()
+    (base / "config.json").write_text(json.dumps({"model": "brand"}))
+    (base / "arrays.npz").write_bytes(b"")
+    line = one_error_line(personalize(clip, "--out", tmp_path / "m", "--base", base, "--work", tmp_path / "w"))
+    assert "--base" in line and "brand" in line and "LSTM" in line, line
+    assert not (tmp_path / "w" / "footage").exists()
+
+
+def test_a_damaged_shipped_base_is_one_line(tmp_path):
+    import shutil
+    from pipeline.models.base_model import SHIPPED
+    from tests.media_fixtures import make_clip
+    clip = tmp_path / "clip.mp4"
+    make_clip(clip, n_frames=50)
+    base = tmp_path / "base"
+    shutil.copytree(SHIPPED, base)
+    (base / "weights.pt").write_bytes((base / "weights.pt").read_bytes()[:-100])      # truncated
+    line = one_error_line(personalize(clip, "--out", tmp_path / "m", "--base", base, "--work", tmp_path / "w"))
+    assert "weights.pt does not match MANIFEST.json" in line, line
