@@ -42,6 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 YARDSTICK = ROOT.parent / "shared" / "tools" / "lipsync_yardstick.py"
 BAND_HZ = (1.0, 8.0)
+CANDIDATES = ("base", "readout", "encoder_readout", "fine_tune")
 
 
 def videos_of(spec: str) -> tuple[str, list[str]]:
@@ -172,18 +173,21 @@ def fmt(x, spec=".2f"):
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| person | held out | floor (re-encode) ratio / corr | mouth variance following speech | in-store base / readout / fine-tune ratio (corr) | kept | `speak` ratio / corr lag 0 / best | oracle render ratio / corr |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| person | held out | floor: re-encode ratio / corr | mouth variance following speech | in-store ratio (corr): "
+             "base · readout · encoder_readout · fine_tune | kept | `speak` ratio / corr lag 0 / best | `speak` sharpness / "
+             "flicker (yardstick: original ÷ output) | oracle render ratio / corr |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            lines.append(f"| {r['name']} | {r['error']} |  |  |  |  |  |  |")
+            lines.append(f"| {r['name']} | {r['error']} |  |  |  |  |  |  |  |")
             continue
         st = r["in_store"]
-        cands = " / ".join(f"{fmt(st[c]['ratio'])} ({fmt(st[c]['corr'])})" for c in ("base", "readout", "fine_tune") if c in st)
-        lines.append(f"| {r['name']} | {len(r['held_out'])} clips | {fmt(r['floor']['err_ratio'])} / {fmt(r['floor']['corr'])} | "
+        cands = " · ".join(f"{fmt(st[c]['ratio'])} ({fmt(st[c]['corr'])})" for c in CANDIDATES if c in st)
+        sp, orc, fl = r["speak"], r["oracle"], r["floor"]
+        lines.append(f"| {r['name']} | {len(r['held_out'])} clips | {fmt(fl['err_ratio'])} / {fmt(fl['corr'])} | "
                      f"{fmt(r['speech_share']['share'])} | {cands} | {r['chosen']} | "
-                     f"{fmt(r['speak']['err_ratio'])} / {fmt(r['speak']['corr'])} / {fmt(r['speak']['corr_best'])} | "
-                     f"{fmt(r['oracle']['err_ratio'])} / {fmt(r['oracle']['corr'])} |")
+                     f"{fmt(sp['err_ratio'])} / {fmt(sp['corr'])} / {fmt(sp['corr_best'])} | "
+                     f"{fmt(sp['sharp'])} / {fmt(sp['flicker'])} | {fmt(orc['err_ratio'])} / {fmt(orc['corr'])} |")
     return "\n".join(lines) + "\n"
 
 
