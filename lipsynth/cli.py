@@ -26,6 +26,7 @@ COMMANDS = {
     "synthesize": ("stages.synthesize.synthesize", "new audio → re-timed lower-face textures → store/synthesize.zarr"),
     "composite": ("stages.composite.composite", "synthesized textures into the target video → outputs/…/result.mp4"),
     "dvc-deps": ("lipsynth.dvc_deps", "check (or --write) the code deps of dvc.yaml's stages, derived from their imports"),
+    "params-doc": ("lipsynth.params_doc", "print, --write or --check docs/parameters_reference.md (rendered from pipeline/params.py)"),
     "speak": ("lipsynth.speak", "audio + any video of the speaker → lip-synced MP4 (preprocesses the target)"),
     "render-mesh": ("lipsynth.render_mesh", "audio → animated 3D lower face of the model's speaker (pyvista, front + 3/4 view) → MP4"),
     "cut": ("lipsynth.cut", "one video → consecutive segment files (data.split: time holds out its end)"),
