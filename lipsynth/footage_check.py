@@ -20,26 +20,36 @@ MIN_USABLE_SECONDS = 15.0        #: tracked face needed in all (personalize asks
 MIN_FLOOR_CORR = 0.5             #: tracked lips of a video and of its re-encoding must agree this well to learn from
 
 
-def tracker_floor(path, landmark_params, crf: int = 18) -> float:
-    """How well the tracker sees this mouth: the correlation of the inner-lip opening tracked on
-    ``path`` with the opening tracked on the same frames re-encoded (H.264 CRF ``crf``), over the
-    frames tracked in both — the most any model scored by this tracker can reach (1 = noise-free)."""
+def tracker_floor(ingest_path: str, landmark_params, crf: int = 18) -> tuple[str, float]:
+    """How well the tracker sees this mouth, on the first held-out video of a store: the correlation
+    of the inner-lip opening tracked on its stored face crops with the opening tracked on the same
+    crops re-encoded (H.264 CRF ``crf``), over the frames tracked in both — the most any model
+    scored by this tracker can reach (1 = noise-free). Returns (the video's path, the correlation;
+    NaN when fewer than 10 frames are tracked in both)."""
     import tempfile
     from pathlib import Path
 
-    from lipsynth.lipsync_quality import inner_opening, video_landmarks
+    from lipsynth.lipsync_quality import inner_opening
     from pipeline.io import media
+    from pipeline.io.store import open_group
+    from stages.landmarks.landmarks import track_video
+    src = open_group(ingest_path)
+    v = next(v for v in src.attrs["videos"] if v["split"] == "val" and not v.get("excluded"))
+    crops = src["crops"][v["first_frame"]:v["first_frame"] + v["n_frames"]]
+    side = crops.shape[2]
+    grays = np.ascontiguousarray(crops[:, :side])                        # the Y plane of the I420 crops
     with tempfile.TemporaryDirectory() as tmp:
         copy = Path(tmp) / "reencoded.mp4"
-        media.write_video(copy, (frame for _, frame in media.iter_frames(path)), media.probe(path).fps, crf=crf)
-        _, lm_a, ok_a = video_landmarks(path, landmark_params)
-        _, lm_b, ok_b = video_landmarks(copy, landmark_params)
+        media.write_video(copy, (np.repeat(g[..., None], 3, -1) for g in grays), v["fps"], crf=crf)
+        again = np.stack([g for _, g in media.iter_frames(copy, "gray")])
+    lm_a, _, ok_a, _ = track_video(grays, landmark_params)
+    lm_b, _, ok_b, _ = track_video(again, landmark_params)
     n = min(len(lm_a), len(lm_b))
     ok = ok_a[:n] & ok_b[:n]
     if ok.sum() < 10:
-        return float("nan")
-    a, b = inner_opening(lm_a[:n][ok]), inner_opening(lm_b[:n][ok])
-    return float(np.corrcoef(a, b)[0, 1]) if a.std() > 0 and b.std() > 0 else 0.0
+        return v["path"], float("nan")
+    a, b = inner_opening(np.asarray(lm_a)[:n][ok]), inner_opening(np.asarray(lm_b)[:n][ok])
+    return v["path"], float(np.corrcoef(a, b)[0, 1]) if a.std() > 0 and b.std() > 0 else 0.0
 
 
 def verdict(usable_s: dict[str, float], people: dict[str, np.ndarray], same_person: float,

@@ -84,16 +84,15 @@ def held_out_line(segments: list[Path], val_fraction: float) -> str:
 def tracker_floor(ingest_path: str, landmark_params: dict) -> float:
     """``footage_check.tracker_floor`` on the first held-out clip; one line when it is below
     ``MIN_FLOOR_CORR`` (lips too noisy to learn from or to score)."""
-    from pipeline.io.store import open_group
     from pipeline.params import Landmarks
-    clip = next(v["path"] for v in open_group(ingest_path).attrs["videos"] if v["split"] == "val")
-    clip = str(Path(clip) if Path(clip).is_absolute() else Path(__file__).resolve().parents[1] / clip)
-    corr = footage_check.tracker_floor(clip, Landmarks(**landmark_params))
+    clip, corr = footage_check.tracker_floor(ingest_path, Landmarks(**landmark_params))
     log.info("tracker floor: the lips tracked on %s and on its re-encoding correlate %.2f", clip, corr)
-    if not corr >= footage_check.MIN_FLOOR_CORR:
+    if corr < footage_check.MIN_FLOOR_CORR:
         raise LipsynthError(f"{clip}: the tracked lips are too noisy to learn from (their opening on the clip and on "
                             f"its re-encoding correlate {corr:.2f}, at least {footage_check.MIN_FLOOR_CORR} needed): "
                             f"a larger, sharper or better-lit face is needed")
+    if not np.isfinite(corr):
+        log.warning("tracker floor: too few frames of %s tracked twice to measure it; not checked", clip)
     return corr
 
 
