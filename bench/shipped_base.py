@@ -27,14 +27,15 @@ import json
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
 
+from base_model import run  # noqa: E402  (bench/base_model.py: one stage as a subprocess, its seconds)
 from pipeline.models.base_model import MODEL_FILES, write_manifest  # noqa: E402
 from pipeline.params import as_dict, parse  # noqa: E402
 
@@ -61,12 +62,6 @@ def base_params(corpus: str, steps: int, run_dir: Path) -> dict:
                          metrics=str(run_dir / "base_shipped" / "train.json"),
                          plots=str(run_dir / "base_shipped" / "train_loss.csv"))
     return as_dict(parse(tree, "bench/shipped_base.py"))
-
-
-def run(module: str, params_file: Path) -> float:
-    t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", module, "--params", str(params_file)], cwd=ROOT, check=True)
-    return time.perf_counter() - t0
 
 
 def main() -> None:
