@@ -184,7 +184,7 @@ def table(rows: list[dict]) -> str:
         st = r["in_store"]
         cands = " · ".join(f"{fmt(st[c]['ratio'])} ({fmt(st[c]['corr'])})" for c in CANDIDATES if c in st)
         sp, orc, fl = r["speak"], r["oracle"], r["floor"]
-        lines.append(f"| {r['name']} | {len(r['held_out'])} clips | {fmt(fl['err_ratio'])} / {fmt(fl['corr'])} | "
+        lines.append(f"| {r['name']} | {len(r['held_out'])} clip{'s' if len(r['held_out']) != 1 else ''} | {fmt(fl['err_ratio'])} / {fmt(fl['corr'])} | "
                      f"{fmt(r['speech_share']['share'])} | {cands} | {r['chosen']} | "
                      f"{fmt(sp['err_ratio'])} / {fmt(sp['corr'])} / {fmt(sp['corr_best'])} | "
                      f"{fmt(sp['sharp'])} / {fmt(sp['flicker'])} | {fmt(orc['err_ratio'])} / {fmt(orc['corr'])} |")
