@@ -90,3 +90,35 @@ def make_anamorphic_clip(path, frames, sar=Fraction(2, 1), fps=Fraction(25)):
                 c.mux(p)
         for p in v.encode():
             c.mux(p)
+
+
+def make_vfr_clip(path, times, size=(96, 64), frames=None, audio=None, sample_rate=48000):
+    """Write a video whose frame i is shown at ``times[i]`` s (a variable frame rate, as phones
+    record). Frames default to grey level ``4 * i`` (each shows its own index); ``audio`` (mono
+    float32 at ``sample_rate``) adds an AAC track from 0 s."""
+    if frames is None:
+        frames = np.repeat((4 * np.arange(len(times), dtype=np.uint8))[:, None, None, None], 3, -1)
+        frames = np.broadcast_to(frames, (len(times), size[1], size[0], 3))
+    with av.open(str(path), "w") as c:
+        v = c.add_stream("libx264", rate=25)
+        v.width, v.height, v.pix_fmt = frames.shape[2], frames.shape[1], "yuv420p"
+        v.codec_context.time_base = Fraction(1, 1000)
+        v.options = {"crf": "0"}
+        a = c.add_stream("aac", rate=sample_rate, layout="mono") if audio is not None else None
+        for t, img in zip(times, frames):
+            fr = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")
+            fr.pts, fr.time_base = int(round(t * 1000)), Fraction(1, 1000)
+            for p in v.encode(fr):
+                c.mux(p)
+        for p in v.encode():
+            c.mux(p)
+        if a is not None:
+            for i in range(0, len(audio), 1024):
+                fr = av.AudioFrame.from_ndarray(np.ascontiguousarray(audio[None, i:i + 1024], np.float32),
+                                                format="flt", layout="mono")
+                fr.sample_rate, fr.pts, fr.time_base = sample_rate, i, Fraction(1, sample_rate)
+                for p in a.encode(fr):
+                    c.mux(p)
+            for p in a.encode():
+                c.mux(p)
+    return path

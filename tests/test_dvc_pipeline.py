@@ -564,6 +564,36 @@ def test_speak_into_a_phone_video_stored_sideways(project, tmp_path):
 
 
 @pytest.mark.slow
+def test_speak_into_a_variable_frame_rate_video(project, tmp_path):
+    """A phone-style variable frame rate: the first half of a clip at 50 fps, the rest at 25 fps
+    with every third frame missing. speak's output is constant-rate, as long as the input, and
+    each output frame shows the input's picture of that moment (the face is composited in place)."""
+    from pipeline.io import media
+    from tests.media_fixtures import make_vfr_clip
+    source = project / "data" / "synthetic_speaker" / "speaker_03.mp4"
+    info = media.probe(source)
+    frames = np.stack([f for _, f in media.iter_frames(source)])
+    t = np.arange(len(frames)) / info.fps
+    half = len(frames) // 2
+    fast = np.repeat(np.arange(half), 2)                                   # 50 fps: each frame twice
+    keep = np.concatenate([fast, [k for k in range(half, len(frames)) if k % 3]])
+    times = np.concatenate([np.arange(len(fast)) / (2 * info.fps), t[half:][(np.arange(half, len(frames)) % 3) > 0]])
+    audio, _ = media.read_audio(source, 48000)
+    vfr = make_vfr_clip(tmp_path / "vfr.mp4", times, frames=frames[keep], audio=audio)
+    shown = media.probe(vfr)
+    assert abs(shown.fps - info.fps) > 1                                   # not the source's rate
+    out = tmp_path / "out.mp4"
+    r = speak(project, tmp_path, "--audio", source, "--target", vfr, "--out", out, "--no-retime")
+    assert r.returncode == 0, r.stderr[-2000:]
+    result = media.probe(out)
+    played = [f for _, f in media.iter_frames(vfr)]
+    got = [f for _, f in media.iter_frames(out)]
+    assert abs(len(got) / result.fps - len(played) / shown.fps) < 2 / shown.fps  # as long as the input
+    for k in range(0, min(len(got), len(played)), 7):                      # the input's picture at each moment
+        assert np.abs(got[k][:40].astype(float) - played[k][:40]).mean() < 6, k   # the top rows: no mouth there
+
+
+@pytest.mark.slow
 def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
     """HDTF footage (512², 25 fps) as target, radio speech (16 kHz stereo WAV) as audio, the
     synthetic speaker's model (re-targeted onto the real mouth): only the lower face changes."""

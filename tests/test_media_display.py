@@ -1,4 +1,5 @@
-"""Frames as players show them: display rotation (phone video) and sample aspect ratio (anamorphic)."""
+"""Frames as players show them: display rotation (phone video), sample aspect ratio (anamorphic),
+variable frame rate (phones, screen recorders)."""
 from fractions import Fraction
 
 import numpy as np
@@ -6,7 +7,7 @@ import pytest
 
 from pipeline.errors import BadInputError
 from pipeline.io import media
-from tests.media_fixtures import face_frames, make_anamorphic_clip, make_clip, set_display_rotation
+from tests.media_fixtures import face_frames, make_anamorphic_clip, make_clip, make_vfr_clip, set_display_rotation
 
 
 def marked_frames(n=6, size=(96, 64)):
@@ -71,3 +72,34 @@ def test_a_rotation_that_is_not_a_quarter_turn_is_one_clear_error(tmp_path):
     with pytest.raises(BadInputError, match="display rotation of -?45° .*multiples of 90°") as e:
         media.probe(clip)
     assert str(clip) in str(e.value)
+
+
+def test_constant_rate_passes_a_jittered_constant_rate_stream_unchanged():
+    rng = np.random.default_rng(1)
+    times = 0.5 + np.arange(40) / 25 + rng.uniform(-0.018, 0.018, 40)   # jitter below half a frame
+    out = list(media.constant_rate(zip(times, range(40)), 25.0))
+    assert [i for _, i in out] == list(range(40))
+    np.testing.assert_allclose([t for t, _ in out], times[0] + np.arange(40) / 25, atol=1e-12)
+
+
+def test_constant_rate_repeats_over_gaps_and_drops_crowded_frames():
+    times = [0.0, 0.04, 0.2, 0.21, 0.22, 0.24]      # a 160 ms gap, then three frames within one period
+    out = list(media.constant_rate(zip(times, range(6)), 25.0))
+    assert [i for _, i in out] == [0, 1, 1, 1, 1, 4, 5]
+    assert list(media.constant_rate(iter([]), 25.0)) == []
+
+
+def test_a_variable_frame_rate_clip_is_decoded_on_its_average_rate(tmp_path):
+    rng = np.random.default_rng(0)
+    times = np.concatenate([[0], np.cumsum(rng.choice([0.033, 0.040, 0.066], 59, p=[.4, .4, .2]))])
+    clip = make_vfr_clip(tmp_path / "vfr.mp4", times)
+    info = media.probe(clip)
+    out = list(media.iter_frames(clip, "gray"))
+    slots = np.array([t for t, _ in out])
+    np.testing.assert_allclose(np.diff(slots), 1 / info.fps, rtol=1e-9)       # evenly spaced
+    assert abs(len(out) - info.n_frames) <= 1
+    shown = np.array([int(round((g.mean() - 16) / 4 * 255 / 219)) for _, g in out])   # limited-range Y → index
+    expected = [int(np.flatnonzero(times <= s + 0.5 / info.fps).max()) for s in slots]
+    np.testing.assert_array_equal(shown, expected)
+    assert len(set(shown)) < len(times)                       # crowded frames were dropped
+    assert (np.diff(shown) == 0).any()                        # gaps were filled by repeats

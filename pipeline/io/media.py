@@ -104,9 +104,7 @@ def probe(path) -> VideoInfo:
         if not c.streams.video:
             raise BadInputError(path, "no video stream")
         v = c.streams.video[0]
-        rate = v.average_rate or v.guessed_rate or v.base_rate
-        if not rate or float(rate) <= 0:
-            raise BadInputError(path, "video stream has no usable frame rate")
+        rate = _stream_rate(v, path)
         a = c.streams.audio[0] if c.streams.audio else None
         dur = float(c.duration / av.time_base) if c.duration else (
             float(v.duration * v.time_base) if v.duration else 0.0)
@@ -136,8 +134,47 @@ def yuv_planes(frame: av.VideoFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return out[0], out[1], out[2]
 
 
+def constant_rate(timed: Iterator[tuple[float, object]], fps: float) -> Iterator[tuple[float, object]]:
+    """Frames of any timing → frames on the grid ``t0 + k / fps`` (what players show).
+
+    Slot k shows the latest frame whose time is at most half a period after the slot, so a
+    constant-rate stream passes unchanged (timestamp jitter below half a frame is ignored), a
+    variable-rate one (phones, screen recorders) has frames repeated over its gaps and dropped
+    where they crowd. The last frame lasts one period. Times that go backwards are clamped.
+
+    Parameters
+    ----------
+    timed : iterator of (t s, image) in presentation order.
+    fps : output rate, frames/s (the stream's average rate keeps the frame count).
+
+    Yields
+    ------
+    (s_k s, image) with s_k = t0 + k / fps exactly.
+    """
+    period, half = 1.0 / fps, 0.5 / fps
+    t0, k, prev, last_t = None, 0, None, None
+    for t, img in timed:
+        if t0 is None:
+            t0, prev, last_t = t, img, t
+            continue
+        t = max(t, last_t)
+        while t0 + k * period + half < t:         # slot k ends before this frame starts: it shows prev
+            yield t0 + k * period, prev
+            k += 1
+        prev, last_t = img, t
+    if t0 is None:
+        return
+    while t0 + k * period < last_t + half:         # the last frame's own period
+        yield t0 + k * period, prev
+        k += 1
+
+
 def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Iterator[tuple[float, object]]:
-    """Yield ``(t, image)`` for each decoded frame.
+    """Yield ``(t, image)`` for each frame as a player shows it, on the stream's average rate.
+
+    Frames are turned by the display rotation, resampled to square pixels, and put on the
+    constant-rate grid of ``constant_rate`` (variable frame rate → repeated or dropped frames);
+    ``keyframes_only`` yields the key frames at their own times.
 
     Parameters
     ----------
@@ -153,6 +190,29 @@ def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Itera
         Presentation time in seconds (stream clock).
     image : ndarray or tuple of ndarray
     """
+    if keyframes_only:
+        yield from _decoded(path, fmt, True)
+        return
+    yield from constant_rate(_decoded(path, fmt, False), probe_rate(path))
+
+
+def probe_rate(path) -> float:
+    """The video stream's average frame rate (frames/s), as ``probe`` reports it."""
+    with _open(path) as c:
+        if not c.streams.video:
+            raise BadInputError(path, "no video stream")
+        return _stream_rate(c.streams.video[0], path)
+
+
+def _stream_rate(v, path) -> float:
+    rate = v.average_rate or v.guessed_rate or v.base_rate
+    if not rate or float(rate) <= 0:
+        raise BadInputError(path, "video stream has no usable frame rate")
+    return float(rate)
+
+
+def _decoded(path, fmt: str, keyframes_only: bool) -> Iterator[tuple[float, object]]:
+    """Every decoded frame at its own presentation time, upright and with square pixels."""
     with _open(path) as c:
         if not c.streams.video:
             raise BadInputError(path, "no video stream")

@@ -241,7 +241,7 @@ def probe_video(path: str, p: Ingest, require_audio: bool = True) -> dict:
     if info.n_frames and info.n_frames / info.fps < p.min_seconds:     # the container may be longer (audio)
         raise BadInputError(path, f"too short: {info.n_frames / info.fps:.2f} s of video "
                                   f"< ingest.min_seconds={p.min_seconds}")
-    est = info.n_frames or int(np.ceil(info.duration * info.fps))
+    est = max(info.n_frames, int(np.ceil(info.duration * info.fps)))   # a variable rate may repeat frames
     return dict(name=video_name(path), path=project_path(path), fps=info.fps, width=info.width,
                 height=info.height, est_frames=est, source_audio_rate=info.audio_rate,
                 source_audio_channels=info.audio_channels)
