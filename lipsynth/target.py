@@ -13,6 +13,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -127,7 +128,9 @@ def landmarked_target(video: Path, params: Params, cache: Path, shared: SharedCl
             run.cluster.address = client_address(client)
             landmarks.run(run, p.ingest.out, p.landmarks.out)
         except LipsynthError as exc:
-            raise LipsynthError(without_training_hints(str(exc))) from None
+            from pipeline.io.store import project_path
+            message = without_training_hints(str(exc)).replace(project_path(video.absolute()), str(video))
+            raise LipsynthError(message) from None
     return p
 
 
@@ -137,7 +140,8 @@ TRAINING_HINTS = (" (set data.on_bad_input: skip to leave such videos out)",
 
 def without_training_hints(message: str) -> str:
     """A stage's message for ``speak``: the advice to skip videos of a training corpus (a param
-    ``speak`` does not have) removed."""
+    ``speak`` does not have) removed, and a setting it names (``section.key=value``) said to be one
+    of the ``--params`` file, speak's own option."""
     for hint in TRAINING_HINTS:
         message = message.replace(hint, "")
-    return message
+    return re.sub(r"\b([a-z_]+\.[a-z_]+=[^\s)]+)", r"\1 of --params", message)
