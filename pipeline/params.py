@@ -500,6 +500,8 @@ class Composite:
         metadata={"help": "dlib re-reads the mouth of every output frame; frames that fail the check fall back to the target frame"})
     check_max_error: float = field(default=0.12,
         metadata={"help": "self-check: fall back when the re-read mouth is further than this × IOD from the synthesized one (mean point distance)"})
+    check_max_face_error: float = field(default=0.1,
+        metadata={"help": "self-check: fall back when the re-read nose and chin are further than this × IOD from the target's (the chin moved with the synthesized lower lip)"})
     check_max_sharpness: float = field(default=4.0,
         metadata={"help": "self-check: fall back when the mouth box is this many times sharper (Laplacian energy) than the target's"})
     check_fade_frames: int = field(default=3,

@@ -43,3 +43,23 @@ def test_check_passes_a_real_face_and_catches_a_wrong_mouth():
     noise = np.random.default_rng(0).integers(0, 255, (y1 - y0, x1 - x0, 3), dtype=np.uint8)
     noisy[y0:y1, x0:x1] = noise
     assert check_frame(noisy, lm, mouth_energy(rgb, lm))["sharpness"] > 4.0
+
+
+def test_check_catches_a_lower_face_drawn_stretched_down():
+    """The issue-33 failure at 4K: nose stretched down and the mouth lower — the whole lower face
+    moved, so the mouth alone (its points moved with it) could pass; the nose and chin do not."""
+    rgb, lm = _photo()
+    good = check_frame(rgb, lm, mouth_energy(rgb, lm))
+    assert good["face_error"] < 0.04 and passes(good, 0.12, 4.0, 0.1)
+    iod = float(dlib_face.interocular(lm))
+    top = float(lm[27:30, 1].mean())                        # below the eyes: the mouth 0.25 IOD lower
+    scale = 1 + 0.25 * iod / (lm[48:68, 1].mean() - top)
+    h, w = rgb.shape[:2]
+    ys, xs = np.mgrid[:h, :w].astype(np.float32)
+    src_y = np.where(ys > top, top + (ys - top) / scale, ys).astype(np.float32)
+    stretched = cv2.remap(rgb, xs, src_y, cv2.INTER_LINEAR)
+    expected = lm.copy()
+    expected[48:68, 1] = top + (lm[48:68, 1] - top) * scale  # the synthesized mouth claims its new place
+    bad = check_frame(stretched, expected, mouth_energy(rgb, lm))
+    assert bad["error"] < 0.12                              # the mouth check alone passes it
+    assert bad["face_error"] > 0.1 and not passes(bad, 0.12, 4.0, 0.1)

@@ -82,8 +82,10 @@ class Target:
 
     def expected_landmarks(self, j: int, synthesized: np.ndarray) -> np.ndarray:
         """Where the landmarks (68, 2) of output frame showing target frame j should lie, in frame px:
-        the target's own, with the mouth (48–67) of ``synthesized`` (68, 2) texture px."""
+        the target's own, with the mouth (48–67) of ``synthesized`` (68, 2) texture px and the chin
+        (6–10) moved as the synthesized lower lip moved from the target's."""
         lm = self.flm[j].copy()
+        lm[self_check.CHIN] += (synthesized[self_check.LOWER_LIP] - lm[self_check.LOWER_LIP]).mean(0)
         lm[48:68] = synthesized[48:68]
         return self_check.to_frame(lm, self.surface, self.window, self.pose[j, :3], self.pose[j, 3:], self.K)
 
@@ -249,10 +251,12 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
                         timing[k] = timing.get(k, 0.0) + v
                     if check is not None:
                         checks.append(check)
-                        ok[i] = self_check.passes(check, p.check_max_error, p.check_max_sharpness)
+                        ok[i] = self_check.passes(check, p.check_max_error, p.check_max_sharpness,
+                                                  p.check_max_face_error)
                         if not ok[i]:
-                            log.debug("self-check: output frame %d fails (mouth error %.3f × IOD, sharpness × %.1f)",
-                                      i, check["error"], check["sharpness"])
+                            log.debug("self-check: output frame %d fails (mouth error %.3f × IOD, nose and chin "
+                                      "%.3f × IOD, sharpness × %.1f)", i, check["error"], check["face_error"],
+                                      check["sharpness"])
                     ready.append((i, frame, result, texture))
                     emit(fade)
 
@@ -286,11 +290,13 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
     if p.self_check:
         summary = dict(checked=len(checks), fallen_back=int((~ok).sum()),
                        median_error=float(np.median([c["error"] for c in checks])) if checks else None,
+                       median_face_error=float(np.median([c["face_error"] for c in checks])) if checks else None,
                        median_sharpness=float(np.median([c["sharpness"] for c in checks])) if checks else None)
-        log.info("self-check: %d frames checked, %d fell back to the target frame (mouth error > %.2f × IOD or "
-                 "sharpness > %.1f×; median error %.3f, median sharpness %.2f×)", summary["checked"],
-                 summary["fallen_back"], p.check_max_error, p.check_max_sharpness,
-                 summary["median_error"] or float("nan"), summary["median_sharpness"] or float("nan"))
+        log.info("self-check: %d frames checked, %d fell back to the target frame (mouth error > %.2f × IOD, "
+                 "nose and chin > %.2f × IOD or sharpness > %.1f×; median errors %.3f and %.3f, median sharpness "
+                 "%.2f×)", summary["checked"], summary["fallen_back"], p.check_max_error, p.check_max_face_error,
+                 p.check_max_sharpness, summary["median_error"] or float("nan"),
+                 summary["median_face_error"] or float("nan"), summary["median_sharpness"] or float("nan"))
         ms["self_check"] = summary
     return ms
 

@@ -18,6 +18,10 @@ from pipeline.face.canonical import Surface, TextureWindow
 from pipeline.face.dlib_face import MOUTH, interocular, predict_landmarks
 from pipeline.face.geometry import project
 
+CHIN = np.arange(6, 11)                     # the jawline's lowest five points: they follow the mouth
+NOSE_AND_CHIN = np.r_[27:36, CHIN]
+LOWER_LIP = np.array([56, 57, 58, 65, 66, 67])
+
 
 def to_frame(uv: np.ndarray, surface: Surface, window: TextureWindow, rvec, tvec, K: np.ndarray) -> np.ndarray:
     """Texture-pixel points (K, 2) on the extended face surface → frame pixels (K, 2) at a pose."""
@@ -65,7 +69,8 @@ def check_frame(result: np.ndarray, expected: np.ndarray, reference_energy: floa
         the output is no reference).
 
     Returns dict(error: mean distance of dlib's mouth points on ``result`` to ``expected``'s, in
-    inter-ocular distances; sharpness: the mouth box's Laplacian energy in ``result`` over
+    inter-ocular distances; face_error: the same for the nose (27–35) and chin (6–10), the rest of
+    the rendered lower face; sharpness: the mouth box's Laplacian energy in ``result`` over
     ``reference_energy``).
     """
     # only the face box, grown by half its size on each side (the predictor's samples stay well
@@ -80,13 +85,15 @@ def check_frame(result: np.ndarray, expected: np.ndarray, reference_energy: floa
     found = predict_landmarks(gray, np.r_[box[:2] - origin, box[2:] - origin]) + origin
     iod = float(interocular(expected))
     err = float(np.linalg.norm(found[MOUTH] - expected[MOUTH], axis=1).mean() / max(iod, 1e-6))
+    face_err = float(np.linalg.norm(found[NOSE_AND_CHIN] - expected[NOSE_AND_CHIN], axis=1).mean() / max(iod, 1e-6))
     mouth = mouth_box(expected)
     sharp = laplacian_energy(gray, np.r_[mouth[:2] - origin, mouth[2:] - origin])
-    return dict(error=err, sharpness=sharp / max(reference_energy, 1e-6))
+    return dict(error=err, face_error=face_err, sharpness=sharp / max(reference_energy, 1e-6))
 
 
-def passes(check: dict, max_error: float, max_sharpness: float) -> bool:
-    return bool(check["error"] <= max_error and check["sharpness"] <= max_sharpness)
+def passes(check: dict, max_error: float, max_sharpness: float, max_face_error: float = np.inf) -> bool:
+    return bool(check["error"] <= max_error and check["sharpness"] <= max_sharpness
+                and check.get("face_error", 0.0) <= max_face_error)
 
 
 def fallback_weights(ok: np.ndarray, fade: int) -> np.ndarray:
