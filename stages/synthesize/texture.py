@@ -148,7 +148,7 @@ def weighted_median(images: np.ndarray, w: np.ndarray, block: int = 8192) -> np.
 
     For every value position the candidate values are sorted and the result is the first value
     at which the cumulative weight reaches half the total (so it is always one of the inputs;
-    an exact half picks the lower value). Sorting uses 16-bit keys value·256 + candidate along
+    an exact half picks the lower value). Sorting uses 32-bit keys value·256 + candidate along
     contiguous rows (SIMD sort), ``block`` values at a time to stay in cache.
 
     Parameters
@@ -180,8 +180,10 @@ def weighted_median(images: np.ndarray, w: np.ndarray, block: int = 8192) -> np.
 def _median_block(x: np.ndarray, lut: np.ndarray) -> np.ndarray:
     """(n, P) uint8 values, lut[:n] = normalised weights → (P,) uint8 weighted medians."""
     n = len(x)
-    keys = np.left_shift(cv2.transpose(x), 8, dtype=np.uint16)             # (P, n)
-    keys |= np.arange(n, dtype=np.uint16)
+    # 32-bit keys: numpy's SIMD sort (x86-simd-sort) has 16-bit kernels only with AVX-512, 32-bit
+    # ones with AVX2 too — 6–12× faster on CPUs without AVX-512, the same order everywhere
+    keys = np.left_shift(cv2.transpose(x), 8, dtype=np.int32)              # (P, n)
+    keys |= np.arange(n, dtype=np.int32)
     keys.sort(axis=1)
     keys = cv2.transpose(keys)                                              # (n, P) sorted by value
     wsorted = cv2.LUT(keys.astype(np.uint8), lut)           # low byte = candidate → (n, P) weights
