@@ -111,7 +111,22 @@ def main() -> int:
     ax.set_title(f"speak output vs original, dlib re-tracked ({a.clip}, {commit})", fontsize=9)
     fig.tight_layout()
     fig.savefig(a.out.with_suffix(".png"), dpi=110)
-    print(f"wrote {a.out} and {a.out.with_suffix('.png')}")
+    page = ROOT / "docs" / "geometry_scale.md"
+    lines = [f"<!-- written by bench/geometry_scale.py at {commit}; do not edit -->",
+             "# The mouth in place at any footage size", "",
+             f"GRID s1 clip `{a.clip}` upscaled and spoken into with its own audio (`lipsynth speak --no-retime`, "
+             f"model `{a.model}`); dlib re-tracks output and original at 720 px wide. Medians over frames, "
+             "in inter-ocular distances (IOD). Goal (issue 33): the mouth at 10× within the 1× figure + 0.01.", "",
+             "| scale | frame | IOD (px) | mouth | nose and chin | mouth height offset | speak (s) |",
+             "|---|---|---|---|---|---|---|"]
+    lines += [f"| {k} | {r['width']}×{r['height']} | {r['iod_px']:.0f} | {r['mouth']:.4f} | {r['nose_chin']:.4f} | "
+              f"{r['mouth_dy']:+.4f} | {r['speak_seconds']} |" for k, r in rows.items()]
+    lines += ["", "![mouth, nose and chin error against footage scale](geometry_scale.png)", "",
+              f"Commit {commit}, machine {platform.processor() or platform.machine()}."]
+    page.write_text("\n".join(lines) + "\n")
+    import shutil
+    shutil.copy(a.out.with_suffix(".png"), page.with_suffix(".png"))
+    print(f"wrote {a.out}, {a.out.with_suffix('.png')} and {page}")
     return 0
 
 

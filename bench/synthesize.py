@@ -1,6 +1,9 @@
 """Speed of audio → video (synthesize + composite), ms/frame per phase, at GRID size, 720p and 1080p.
 
-    python bench/synthesize.py --repeats 3
+    python bench/synthesize.py --repeats 3 [--grid-params runs/grid_s1/params.yaml]
+
+Writes results/synthesize_speed.json: per CPU feature level (AVX-512 or AVX2, numpy's
+dispatch), the per-phase medians with commit, date and machine.
 
 GRID size: a validation clip of the preprocessed GRID corpus (``--grid-params``, default
 runs/grid_s1/params.yaml) as target, 32 s of radio speech (../shared/data/hdtf) as audio,
@@ -95,14 +98,64 @@ def one_run(p: Params, stores: dict, entry: dict, video: str, work: Path) -> tup
     return ms, wall, n
 
 
-def report(name: str, runs: list) -> None:
+def report(name: str, runs: list) -> dict:
     n = runs[0][2]
     print(f"\n{name}: {n} output frames, {len(runs)} runs (medians)")
+    row = dict(name=name, frames=n, runs=len(runs), ms_per_frame={})
     for k in PHASES:
-        v = np.median([r[0].get(k, 0.0) for r in runs])
+        v = float(np.median([r[0].get(k, 0.0) for r in runs]))
+        row["ms_per_frame"][k] = round(v, 2)
         print(f"  {k:<17} {v:7.1f} ms/frame")
-    wall = np.median([r[1] for r in runs])
+    wall = float(np.median([r[1] for r in runs]))
+    row["frames_per_s"] = round(n / wall, 2)
     print(f"  {'total':<17} {1000 * wall / n:7.1f} ms/frame → {n / wall:.1f} frames/s (wall, 2 cores)")
+    return row
+
+
+def cpu_features() -> str:
+    """'AVX-512' when numpy dispatches AVX-512 kernels here (x86-simd-sort's 16-bit sort), else the
+    highest of AVX2 / baseline — the row label of the speed table."""
+    from numpy._core._multiarray_umath import __cpu_features__ as f
+    return "AVX-512" if f.get("AVX512_SKX") else "AVX2" if f.get("AVX2") else "baseline"
+
+
+def write_results(rows: dict, path: Path) -> None:
+    import datetime
+    import json
+    import os
+    import platform
+    import subprocess
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    key = cpu_features()
+    old = json.loads(path.read_text()) if path.is_file() else {}
+    old.setdefault("by_cpu", {})[key] = dict(commit=commit, date=datetime.datetime.now().isoformat(timespec="minutes"),
+                                             machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+                                             rows=rows)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(old, indent=1))
+    print(f"wrote {path} ({key} row)")
+    write_page(path)
+
+
+def write_page(path: Path, page: Path = ROOT / "docs" / "synthesis_speed.md") -> None:
+    """docs/synthesis_speed.md from the results file: one table per CPU feature level."""
+    import json
+    res = json.loads(path.read_text())
+    lines = ["<!-- written by bench/synthesize.py from results/synthesize_speed.json; do not edit -->",
+             "# Synthesis speed", "",
+             "`python bench/synthesize.py --repeats 3`: synthesize + composite of 32 s of speech into a GRID "
+             "validation clip, obama_08 (720p) and the same upscaled to 1080p; ms/frame per phase (thread time: "
+             "two threads, so phases add up to more than the wall time), medians over repeats; frames/s is wall "
+             "time on 2 cores. Goals (issue 33): GRID ≥ 60, 720p ≥ 30, 1080p ≥ 20 frames/s.", ""]
+    for cpu, entry in res["by_cpu"].items():
+        rows = entry["rows"]
+        lines += [f"## {cpu} ({entry['machine']}, commit {entry['commit']}, {entry['date']})", "",
+                  "| phase | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]
+        for k in PHASES:
+            lines.append(f"| {k} | " + " | ".join(f"{r['ms_per_frame'].get(k, 0):.1f}" for r in rows.values()) + " |")
+        lines += ["| **frames/s (wall)** | " + " | ".join(f"**{r['frames_per_s']:.1f}**" for r in rows.values()) + " |", ""]
+    page.write_text("\n".join(lines) + "\n")
+    print(f"wrote {page}")
 
 
 def main() -> None:
@@ -111,7 +164,13 @@ def main() -> None:
     ap.add_argument("--grid-params", default="runs/grid_s1/params.yaml", help="params of the preprocessed GRID corpus")
     ap.add_argument("--audio", default=None, help="speech file (default: 32 s of radio speech, see long_speech)")
     ap.add_argument("--only", choices=["grid", "720p", "1080p"], default=None)
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "synthesize_speed.json",
+                    help="results file; one entry per CPU feature level (AVX-512 / AVX2 / baseline)")
+    ap.add_argument("--page-only", action="store_true", help="only rewrite docs/synthesis_speed.md from --out")
     a = ap.parse_args()
+    if a.page_only:
+        return write_page(a.out)
+    rows = {}
     setup_logging()
     import logging
     for name in ("lipsynth.synthesize", "lipsynth.composite", "lipsynth.speak", "lipsynth.target", "lipsynth.ingest",
@@ -131,7 +190,7 @@ def main() -> None:
         p.synthesize = dataclasses.replace(project.synthesize, audio=a.audio, target=entry["name"],
                                            model=corpus.train.out)
         p.composite = dataclasses.replace(project.composite, diagnostic=False)
-        report(f"GRID {entry['width']}×{entry['height']} (target {entry['name']}, pool {p.synthesize.pool_max} "
+        rows["grid"] = report(f"GRID {entry['width']}×{entry['height']} (target {entry['name']}, pool {p.synthesize.pool_max} "
                f"frames)", [one_run(p, stores, entry, entry["path"], work) for _ in range(a.repeats)])
 
     for size in ("720p", "1080p"):
@@ -149,8 +208,9 @@ def main() -> None:
         p.synthesize = dataclasses.replace(p.synthesize, audio=a.audio, target=str(target),
                                            model=load_params(a.grid_params).train.out)
         p.composite = dataclasses.replace(p.composite, diagnostic=False)
-        report(f"{size} {entry['width']}×{entry['height']} (target {target.stem}, its own {entry['n_frames']} frames)",
+        rows[size] = report(f"{size} {entry['width']}×{entry['height']} (target {target.stem}, its own {entry['n_frames']} frames)",
                [one_run(p, stores, entry, str(target), work) for _ in range(a.repeats)])
+    write_results(rows, a.out)
 
 if __name__ == "__main__":
     main()
