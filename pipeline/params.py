@@ -381,13 +381,15 @@ class RenderMesh:
     model: str = field(default="models/karras",
         metadata={"help": "any model folder with a speaker (karras drives jaw + lips, others the lips)"})
     out: str = field(default="outputs/synthetic_speaker_3d/karras_mesh.mp4",
-        metadata={"help": "output MP4 of synthesize.audio: front + three-quarter view, H.264 + AAC"})
+        metadata={"help": "output MP4 of synthesize.audio: the textured head, front + three-quarter view, H.264 + AAC"})
+    export: str = field(default="outputs/synthetic_speaker_3d/karras_head",
+        metadata={"help": "folder for the animated mesh: head.obj/.mtl/.png (rest, textured) + head.pc2 (point cache)"})
     fps: float = field(default=25.0,
         metadata={"help": "output frame rate (frames/s)"})
-    size: int = field(default=360,
+    size: int = field(default=512,
         metadata={"help": "height of each view (px)"})
-    step_mm: float = field(default=2.5,
-        metadata={"help": "mesh grid spacing on the face surface (mm)"})
+    step_mm: float = field(default=2.0,
+        metadata={"help": "head mesh grid spacing on the face surface (mm): 2 mm ≈ 5,000 vertices"})
     emotion: int | str | None = field(default=None,
         metadata={"help": "Karras emotion candidate K or K1:K2:t (null: the model's default)"})
 

@@ -1,83 +1,165 @@
-"""The animated face mesh (``pipeline.face.face_mesh``): surface grid, thin-plate deformation, colours, EGL render."""
+"""The dense 3D head: bi-Laplacian deformation, the head mesh and its mouth cut, the textured EGL render,
+the OBJ + PC2 export (``pipeline.face.bilaplacian``, ``head_mesh``, ``face_mesh``, ``mesh_export``)."""
 import numpy as np
 import pytest
 
-from pipeline.face import face_mesh as fm
-from pipeline.face.canonical import Surface
+from pipeline.face import face_mesh
+from pipeline.face import head_mesh as hm
+from pipeline.face.bilaplacian import BiLaplacian, graph_laplacian
+from pipeline.face.head_texture import HeadWindow, pick_still_frames
+from pipeline.params import Params
+from stages.frontalize.frontalize import build_surface
 
-X, Y = (-60.0, 60.0), (0.0, 120.0)
-
-
-def dome():
-    """A smooth surface: z = (x² + y²) / 400 mm on a 2 mm grid."""
-    xs, ys = np.arange(-110, 111, 2.0), np.arange(-80, 221, 2.0)
-    gx, gy = np.meshgrid(xs, ys)
-    return Surface((gx ** 2 + (gy - 60) ** 2) / 400.0, -110.0, -80.0, 2.0)
+INNER_UPPER, INNER_LOWER = [61, 62, 63], [65, 66, 67]
 
 
-def lips(open_mm: float) -> np.ndarray:
-    """18 lip points (mm) around (0, 70) in dlib order: outer 12 on an ellipse from the left corner over
-    the upper lip, inner 6 (61–63 left to right, 65–67 right to left) opening by ``open_mm``."""
-    a = np.linspace(0, 2 * np.pi, 12, endpoint=False)
-    outer = np.column_stack([-25 * np.cos(a), 70 - (8 + open_mm / 2) * np.sin(a)])
-    inner = np.array([[-10, 70 - open_mm / 2], [0, 70 - open_mm / 2], [10, 70 - open_mm / 2],
-                      [10, 70 + open_mm / 2], [0, 70 + open_mm / 2], [-10, 70 + open_mm / 2]], float)
-    return np.concatenate([outer, inner])
+@pytest.fixture(scope="module")
+def head(face3d):
+    """(surface, window, landmarks (68, 2) mm, rest HeadMesh) of a real face's 68-point model."""
+    surface = hm.smooth_surface(build_surface(face3d, Params().frontalize)[0])
+    window = HeadWindow.covering(1.0)
+    lm = face3d[:, :2].astype(np.float64)
+    lm[[67, 66, 65]] = lm[[61, 62, 63]] + [0.0, 0.5]     # the photo smiles with teeth: shut its mouth
+    return surface, window, lm, hm.head_mesh(surface, window, lm, 2.0)
 
 
-def test_mesh_is_a_triangulated_grid_on_the_surface():
-    s = dome()
-    v, t = fm.lower_face_mesh(s, X, Y, 3.0)
-    assert v.shape == (41 * 41, 3) and t.shape == (2 * 40 * 40, 3)
-    assert np.allclose(v[:, 2], (v[:, 0] ** 2 + (v[:, 1] - 60) ** 2) / 400.0, atol=0.05)
-    assert t.min() == 0 and t.max() == len(v) - 1
+def grid(n=21):
+    xs = np.arange(n, dtype=float)
+    gx, gy = np.meshgrid(xs, xs)
+    w = n
+    r, c = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (r * w + c).ravel()
+    tris = np.concatenate([np.column_stack([a, a + w, a + 1]), np.column_stack([a + 1, a + w, a + w + 1])])
+    return np.column_stack([gx.ravel(), gy.ravel()]), tris
+
+
+def test_laplacian_rows_sum_to_zero_and_count_each_edge_once():
+    v, t = grid(5)
+    L = graph_laplacian(len(v), t).toarray()
+    assert np.allclose(L.sum(1), 0) and np.allclose(np.diag(L), 1)
+    assert np.isclose(L[0, 1], -1 / 2)             # corner (0, 0): 2 neighbours (the diagonals run the other way)
+    assert np.isclose(L[6, 7], -1 / 6)             # an inner vertex: 6
+
+
+def test_bilaplacian_carries_handles_holds_anchors_and_spreads_smoothly():
+    v, t = grid(21)
+    centre = 10 * 21 + 10
+    anchors = np.flatnonzero((v[:, 0] == 0) | (v[:, 0] == 20) | (v[:, 1] == 0) | (v[:, 1] == 20))
+    deform = BiLaplacian(len(v), t, np.array([centre]), anchors)
+    d = deform(np.array([[[0.0, 0.0]], [[0.0, 3.0]]]))
+    assert np.allclose(d[0], 0)                                        # no motion → no displacement
+    assert abs(d[1, centre, 1] - 3.0) < 0.1 and np.abs(d[1, anchors]).max() < 0.05
+    dy = d[1, :, 1].reshape(21, 21)[10]                                # along the row through the handle
+    assert np.all(np.diff(dy[:11]) >= -1e-9) and np.all(np.diff(dy[10:]) <= 1e-9)    # one smooth bump
+    assert 0.3 < dy[5] / dy[10] < 0.95                                 # spread, neither rigid nor a spike
+
+
+def test_head_mesh_is_dense_textured_and_faces_the_camera(head):
+    surface, window, lm, mesh = head
+    v, t, uv = mesh.skin.vertices, mesh.skin.triangles, mesh.skin.uv
+    assert len(v) >= 4000 and t.min() == 0 and t.max() == len(v) - 1
+    assert (uv >= 0).all() and (uv <= 1).all()
+    assert np.allclose(v[:, 2], surface.z(v[:, 0], v[:, 1]))
     a, b = v[t[:, 1], :2] - v[t[:, 0], :2], v[t[:, 2], :2] - v[t[:, 0], :2]
-    area = 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
-    assert np.allclose(area, 4.5)                  # every triangle is half a 3 mm cell: no gaps, no overlaps
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    assert (cross < 0).all()           # one winding, normals towards the camera (−z); no folded triangle
+    # the whole face: eyes, brows and chin are covered
+    for p in lm[[8, 19, 24, 36, 45, 30]]:
+        assert np.linalg.norm(v[:, :2] - p, axis=1).min() < 2.0
 
 
-def test_deformation_moves_the_lips_keeps_anchors_and_stays_on_the_surface():
-    s = dome()
-    v, _ = fm.lower_face_mesh(s, X, Y, 3.0)
-    rest, moved = lips(1.0), np.stack([lips(1.0), lips(12.0)])
-    anchors = fm.border_anchors(X, Y)
-    P = fm.animate(v, s, rest, moved, anchors)
-    assert np.allclose(P[0], v, atol=1e-6)                           # no displacement → the rest mesh
-    below = np.argmin(np.linalg.norm(v[:, :2] - [0, 76], axis=1))    # skin just under the lower lip moves down
-    above = np.argmin(np.linalg.norm(v[:, :2] - [0, 64], axis=1))    # ... and above the upper lip moves up
-    assert P[1, below, 1] - v[below, 1] > 2 and P[1, above, 1] - v[above, 1] < -2
-    corner = np.argmin(np.linalg.norm(v[:, :2] - [X[0], Y[0]], axis=1))
-    assert np.linalg.norm(P[1, corner] - v[corner]) < 1e-3            # border anchors hold
-    z = (P[1, :, 0] ** 2 + (P[1, :, 1] - 60) ** 2) / 400.0
-    assert np.allclose(P[1, :, 2], z, atol=0.05)                     # depth from the surface
+def test_the_mouth_cut_separates_the_lips_and_no_triangle_bridges_it(head):
+    _, _, lm, mesh = head
+    side = mesh.side
+    t = mesh.skin.triangles
+    assert not ((side[t] < 0).any(1) & (side[t] > 0).any(1)).any()
+    handles = hm.handle_vertices(mesh, lm[INNER_UPPER + INNER_LOWER], INNER_UPPER + INNER_LOWER)
+    assert (side[handles[:3]] < 0).all() and (side[handles[3:]] > 0).all()
+    assert np.linalg.norm(lm[62] - lm[66]) < 3.0      # a shut mouth: the handles nearly coincide ...
 
 
-def test_colours_mark_lips_and_mouth_opening():
-    pts = np.array([[0.0, 70.0, 0.0], [0.0, 62.0, 0.0], [0.0, 20.0, 0.0]])
-    c = fm.vertex_colours(pts, lips(6.0))
-    assert tuple(c[0]) == fm.MOUTH and tuple(c[1]) == fm.LIP and tuple(c[2]) == fm.SKIN
-    assert tuple(fm.vertex_colours(pts, lips(0.0))[0]) != fm.MOUTH    # a closed mouth shows no opening
+def test_opening_a_shut_mouth_parts_the_lips_without_dragging_the_upper_face(head):
+    surface, _, lm, mesh = head
+    ids = list(range(48, 68))
+    moved = lm[ids].copy()
+    lower = [ids.index(i) for i in range(55, 60)] + [ids.index(i) for i in INNER_LOWER]
+    moved[lower, 1] += 10.0                                          # the lower lip drops 10 mm
+    motion = face_mesh.animate(mesh, surface, lm, ids, np.stack([lm[ids], moved]))
+    assert np.allclose(motion.skin[0], mesh.skin.vertices, atol=1e-6)
+    h = hm.handle_vertices(mesh, lm[ids], ids)
+    dy = motion.skin[1, :, 1] - mesh.skin.vertices[:, 1]
+    assert (dy[h[[ids.index(i) for i in INNER_LOWER]]] > 9).all()     # ... and still part by the full 10 mm
+    assert (np.abs(dy[h[[ids.index(i) for i in INNER_UPPER]]]) < 1).all()
+    eyes = np.linalg.norm(mesh.skin.vertices[:, :2] - lm[[36, 45]].mean(0), axis=1) < 40
+    assert np.abs(dy[eyes]).max() < 0.5
+    assert (motion.lower_teeth[1, :, 1] - mesh.lower_teeth.vertices[:, 1] > 5).all()    # the jaw's teeth follow
+    z = surface.z(motion.lower_teeth[1, :, 0], motion.lower_teeth[1, :, 1])
+    assert np.allclose(motion.lower_teeth[1, :, 2] - z, hm.TEETH_DEPTH_MM)                # behind the skin
 
 
-def test_coincident_driving_points_do_not_break_the_spline():
-    s = dome()
-    v, _ = fm.lower_face_mesh(s, X, Y, 3.0)
-    P = fm.animate(v, s, lips(0.0), lips(12.0)[None], fm.border_anchors(X, Y))   # closed rest: inner points coincide
-    assert np.isfinite(P).all() and np.abs(P[0] - v).max() < 20
+def test_still_frames_face_the_camera_with_the_mouth_shut():
+    rng = np.random.default_rng(0)
+    F = 200
+    rvecs = rng.normal(0, 0.1, (F, 3))
+    lms = np.zeros((F, 68, 2))
+    lms[:, 66, 1] = rng.uniform(0, 10, F)
+    pick = pick_still_frames(rvecs, lms, 20)
+    turn, opening = np.linalg.norm(rvecs, axis=1), lms[:, 66, 1]
+    assert 0 < len(pick) <= 20 and np.all(np.diff(pick) > 0)
+    assert turn[pick].max() <= np.quantile(turn, 0.4) and opening[pick].max() <= np.quantile(opening, 0.3)
 
 
-def test_offscreen_render_shows_an_open_mouth(monkeypatch):
+def test_textured_render_is_upright_and_an_open_mouth_shows_the_cavity(head, monkeypatch):
     pytest.importorskip("pyvista")
     monkeypatch.setenv("OFF_SCREEN", "True")
-    s = dome()
-    v, t = fm.lower_face_mesh(s, X, Y, 1.5)
-    r = fm.MeshRenderer(v, t, 120)
+    surface, window, lm, mesh = head
+    tex = np.zeros((window.height, window.width, 3), np.uint8)
+    tex[: window.height // 2] = (200, 60, 60)            # forehead half red, chin half blue: catches a flipped v
+    tex[window.height // 2:] = (60, 60, 200)
+    ids = list(range(48, 68))
+    moved = lm[ids].copy()
+    moved[[ids.index(i) for i in list(range(55, 60)) + INNER_LOWER], 1] += 12.0
+    motion = face_mesh.animate(mesh, surface, lm, ids, np.stack([lm[ids], moved]))
+    r = face_mesh.HeadRenderer(mesh, tex, 160)
     try:
-        shut = r.render(v, lips(3.0))
-        P = fm.animate(v, s, lips(3.0), lips(12.0)[None], fm.border_anchors(X, Y))[0]
-        open_ = r.render(P, lips(12.0))
+        shut, opened = r.render(motion, 0).astype(float), r.render(motion, 1).astype(float)
     finally:
         r.close()
-    assert shut.shape == (120, 240, 3) and shut[20:100, 10:110].mean() > 80      # the face is drawn, lit
-    mouth = lambda img: float(img[62:80, 45:75].sum(-1).mean())                # the mouth's middle, front view
-    assert mouth(open_) < 0.6 * mouth(shut)
+    assert shut.shape == (160, 320, 3)
+    front = shut[:, :160]
+    top, bottom = front[30:60, 60:100].mean((0, 1)), front[110:140, 60:100].mean((0, 1))
+    assert top[0] > 1.5 * top[2] and bottom[2] > 1.5 * bottom[0]      # red above, blue below, lit
+    assert shut[:, 160:].sum() > 0.3 * shut[:, :160].sum()            # the three-quarter view is drawn too
+    import cv2
+    face = cv2.erode((front.sum(-1) > 60).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0   # inside the silhouette
+    dark_shut = face & (front.sum(-1) < 100)
+    dark_open = face & (opened[:, :160].sum(-1) < 100)                 # the cavity seen through the lips
+    ys = np.nonzero(dark_open)[0]
+    assert dark_shut.sum() < 10 and dark_open.sum() > 60
+    assert 80 < np.median(ys) < 140                                     # low in the face: the mouth
+
+
+def test_export_writes_obj_texture_and_a_point_cache_that_reads_back(head, tmp_path):
+    from pipeline.face import mesh_export
+    surface, window, lm, mesh = head
+    frames = np.stack([mesh.skin.vertices, mesh.skin.vertices + [0, 1, 0]])
+    tex = np.full((window.height, window.width, 3), 128, np.uint8)
+    paths = mesh_export.write_animated_mesh(tmp_path / "head", mesh.skin, frames, tex, 25.0)
+    assert [p.suffix for p in paths] == [".obj", ".mtl", ".png", ".pc2"] and all(p.is_file() for p in paths)
+    lines = (tmp_path / "head.obj").read_text().splitlines()
+    assert sum(x.startswith("v ") for x in lines) == len(mesh.skin.vertices)
+    assert sum(x.startswith("vt ") for x in lines) == len(mesh.skin.vertices)
+    assert sum(x.startswith("f ") for x in lines) == len(mesh.skin.triangles)
+    cache = mesh_export.read_pc2(tmp_path / "head.pc2")
+    assert cache.shape == frames.shape
+    assert np.allclose(cache, frames * [1, -1, -1], atol=1e-3)        # y up, z to the viewer
+    assert not list(tmp_path.glob("*.tmp*"))
+
+
+def test_a_model_folder_without_a_3d_face_is_refused_in_one_line(tmp_path):
+    from pipeline.models.model_folder import ModelError
+    from stages.render_mesh.render_mesh import speaker_head
+    np.savez(tmp_path / "speaker.npz", shape3d=np.zeros((68, 3)), identity=np.zeros(128), identity_spread=np.zeros(3))
+    with pytest.raises(ModelError, match="no 3D face") as e:
+        speaker_head(str(tmp_path))
+    assert "\n" not in str(e.value) and str(tmp_path) in str(e.value)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates
 
@@ -118,3 +119,29 @@ def frontal_landmarks(landmarks: np.ndarray, start_xy: np.ndarray, surface: Surf
         if not len(active):
             break
     return xy
+
+
+def sample_image(image: np.ndarray, points: np.ndarray, rvec, tvec, K: np.ndarray,
+                 image_from_frame=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Resample ``image`` at the projections of the texture's model points.
+
+    Parameters
+    ----------
+    image : (h, w, 3) uint8 — a frame or a face-region crop of it.
+    points : (H, W, 3) model points of the texture pixels (e.g. ``TextureWindow.grid_points``).
+    rvec, tvec, K : the frame's pose and intrinsics (source-frame pixels).
+    image_from_frame : (x0, y0, s) — the crop: frame pixel = (x0, y0) + s · image pixel.
+
+    Returns
+    -------
+    (H, W, 3) uint8 frontal texture.
+    """
+    R = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3))[0]
+    x0, y0, s = image_from_frame
+    A = np.array([[1 / s, 0, -x0 / s], [0, 1 / s, -y0 / s], [0, 0, 1]]) @ K    # frame → image pixels
+    M = (A @ R).astype(np.float32)
+    b = (A @ np.asarray(tvec, np.float64).reshape(3)).astype(np.float32)
+    uvw = points.reshape(-1, 3).astype(np.float32, copy=False) @ M.T + b
+    mx = (uvw[:, 0] / uvw[:, 2]).reshape(points.shape[:2])
+    my = (uvw[:, 1] / uvw[:, 2]).reshape(points.shape[:2])
+    return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

@@ -210,13 +210,15 @@ def load_speaker(folder) -> dict | None:
 
     Returns dict(shape3d (68, 3) mm, identity (128,), identity_spread (F,), bank: the path of the
     candidate bank zarr (None when the folder has no bank); and, from folders written since the
-    mesh render, surface_depth (H, W), surface_grid (3,), texture_window (4,)). See ``pipeline/models/speaker_bank``.
+    mesh render, surface_depth (H, W), surface_grid (3,), texture_window (4,); since the dense head,
+    head_texture (H, W, 3), head_window (5,), head_landmarks (68, 2)). See ``pipeline/models/speaker_bank``.
     """
     folder = Path(folder)
     if not (folder / "speaker.npz").is_file():
         return None
     with np.load(folder / "speaker.npz") as z:
         out = {k: z[k] for k in ("shape3d", "identity", "identity_spread")}
-        out.update({k: z[k] for k in ("surface_depth", "surface_grid", "texture_window") if k in z.files})
+        out.update({k: z[k] for k in ("surface_depth", "surface_grid", "texture_window", "head_texture", "head_window",
+                                      "head_landmarks") if k in z.files})
     out["bank"] = folder / "bank.zarr" if (folder / "bank.zarr").is_dir() else None
     return out

@@ -10,32 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-
-
-def frontal_texture(image: np.ndarray, points: np.ndarray, rvec, tvec, K: np.ndarray,
-                    image_from_frame=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Resample ``image`` at the projections of the texture's model points.
-
-    Parameters
-    ----------
-    image : (h, w, 3) uint8 — a frame or a face-region crop of it.
-    points : (T, T, 3) model points of the texture pixels (``TextureWindow.grid_points``).
-    rvec, tvec, K : the frame's pose and intrinsics (source-frame pixels).
-    image_from_frame : (x0, y0, s) — the crop: frame pixel = (x0, y0) + s · image pixel.
-
-    Returns
-    -------
-    (T, T, 3) uint8 frontal texture.
-    """
-    R = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3))[0]
-    x0, y0, s = image_from_frame
-    A = np.array([[1 / s, 0, -x0 / s], [0, 1 / s, -y0 / s], [0, 0, 1]]) @ K    # frame → image pixels
-    M = (A @ R).astype(np.float32)
-    b = (A @ np.asarray(tvec, np.float64).reshape(3)).astype(np.float32)
-    uvw = points.reshape(-1, 3).astype(np.float32, copy=False) @ M.T + b
-    mx = (uvw[:, 0] / uvw[:, 2]).reshape(points.shape[:2])
-    my = (uvw[:, 1] / uvw[:, 2]).reshape(points.shape[:2])
-    return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+from pipeline.face.canonical import sample_image as frontal_texture   # the warp itself: shared with the head texture
 
 
 def clothing_mask(texture: np.ndarray, jaw_uv: np.ndarray, dark_value: int, white_saturation: int,
