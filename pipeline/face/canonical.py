@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates
 
+from pipeline import resample
 from pipeline.face.geometry import project, rotation
 
 
@@ -139,9 +140,9 @@ def sample_image(image: np.ndarray, points: np.ndarray, rvec, tvec, K: np.ndarra
     R = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3))[0]
     x0, y0, s = image_from_frame
     A = np.array([[1 / s, 0, -x0 / s], [0, 1 / s, -y0 / s], [0, 0, 1]]) @ K    # frame → image pixels
-    M = (A @ R).astype(np.float32)
-    b = (A @ np.asarray(tvec, np.float64).reshape(3)).astype(np.float32)
-    uvw = points.reshape(-1, 3).astype(np.float32, copy=False) @ M.T + b
-    mx = (uvw[:, 0] / uvw[:, 2]).reshape(points.shape[:2])
-    my = (uvw[:, 1] / uvw[:, 2]).reshape(points.shape[:2])
-    return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    M = A @ R
+    b = A @ np.asarray(tvec, np.float64).reshape(3)
+    # element-wise float64 (no BLAS, whose kernels differ by CPU) and a bit-exact remap: the same bytes anywhere
+    p = points.astype(np.float64, copy=False)
+    u, v, w = (p[..., 0] * M[i, 0] + p[..., 1] * M[i, 1] + p[..., 2] * M[i, 2] + b[i] for i in range(3))
+    return resample.remap(image, u / w, v / w, cv2.BORDER_REPLICATE)

@@ -38,6 +38,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from pipeline import resample
 from pipeline.audio import audio_features
 from pipeline.face import dlib_face
 from pipeline.io import media
@@ -165,15 +166,16 @@ def resample_plane(plane: np.ndarray, scale: float, off_x: float, off_y: float, 
     """Resample one image plane: output pixel (u, v) ← input (off_x + scale·u, off_y + scale·v).
 
     Large downscales (scale > 1.5) are area-averaged first so that nothing aliases; outside the
-    input, border pixels are replicated.
+    input, border pixels are replicated. Bilinear and bit-exact on any x86-64 CPU (``pipeline.resample``).
     """
     if scale > 1.5:
         plane = cv2.resize(plane, None, fx=1 / scale, fy=1 / scale, interpolation=cv2.INTER_AREA)
-        m = np.array([[1, 0, (off_x + 0.5) / scale - 0.5], [0, 1, (off_y + 0.5) / scale - 0.5]])
+        k, x0, y0 = 1.0, (off_x + 0.5) / scale - 0.5, (off_y + 0.5) / scale - 0.5
     else:
-        m = np.array([[scale, 0, off_x], [0, scale, off_y]])
-    return cv2.warpAffine(plane, m, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                          borderMode=cv2.BORDER_REPLICATE)
+        k, x0, y0 = scale, off_x, off_y
+    u = np.arange(size, dtype=np.float64)
+    return resample.remap(plane, np.broadcast_to(x0 + k * u, (size, size)),
+                          np.broadcast_to((y0 + k * u)[:, None], (size, size)), cv2.BORDER_REPLICATE)
 
 
 def cut_crop(yuv: tuple[np.ndarray, np.ndarray, np.ndarray], box: tuple[float, float, float], size: int) -> np.ndarray:

@@ -14,6 +14,7 @@ import numpy as np
 import skimage.data
 from scipy.spatial import Delaunay
 
+from pipeline import resample
 from pipeline.face import dlib_face
 
 FACE_WIDTH_AT_360 = 120.0
@@ -247,8 +248,9 @@ def build_template(width: int, height: int) -> FaceTemplate:
     photo = skimage.data.astronaut()
     box, photo_landmarks = detect_face(photo)
     affine = crop_affine(box, width, height)
-    image = cv2.warpAffine(photo, affine, (width, height), flags=cv2.INTER_CUBIC,
-                           borderMode=cv2.BORDER_REFLECT)
+    # bilinear and bit-exact (pipeline.resample): OpenCV's own warps round differently with and without
+    # AVX2, and the corpus must be the same bytes on any x86-64 CPU
+    image = resample.warp_affine(photo, affine, (width, height), cv2.BORDER_REFLECT)
     landmarks = apply_affine(affine, photo_landmarks)
     image = remove_teeth(image, landmarks)
     corners = apply_affine(affine, np.array([[box.left(), box.top()], [box.right(), box.bottom()]]))

@@ -4,6 +4,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from pipeline import resample
 from stages.synthetic_speaker import articulation, face_template
 
 MIN_TRIANGLE_AREA = 0.5
@@ -28,10 +29,23 @@ def triangle_affines(source: np.ndarray, target: np.ndarray, triangles: np.ndarr
         Target triangle areas (px^2); triangles under ``MIN_TRIANGLE_AREA`` get
         an arbitrary affine and must not be rasterised.
     """
-    homogeneous = np.concatenate([target[triangles], np.ones((len(triangles), 3, 1))], axis=2)
-    areas = 0.5 * np.abs(np.linalg.det(homogeneous))
-    homogeneous[areas < MIN_TRIANGLE_AREA] = np.eye(3)
-    return np.linalg.solve(homogeneous, source[triangles]), areas
+    # Cramer's rule in element-wise float64: LAPACK's solve picks CPU-specific kernels (FMA or not),
+    # and the corpus must be the same bytes on any x86-64 CPU
+    t = target[triangles].astype(np.float64)                  # (K, 3, 2)
+    (x0, y0), (x1, y1), (x2, y2) = t[:, 0].T, t[:, 1].T, t[:, 2].T
+    det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)       # the determinant of [x y 1] rows
+    areas = 0.5 * np.abs(det)
+    small = areas < MIN_TRIANGLE_AREA
+    det = np.where(small, 1.0, det)
+    # inverse of H = [[x0 y0 1], [x1 y1 1], [x2 y2 1]] (adjugate / det), rows of H⁻¹ times source
+    inv = np.stack([np.stack([y1 - y2, y2 - y0, y0 - y1], -1),
+                    np.stack([x2 - x1, x0 - x2, x1 - x0], -1),
+                    np.stack([x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0], -1)], 1) / det[:, None, None]
+    inv[small] = np.eye(3)
+    src = source[triangles].astype(np.float64)                # (K, 3, 2)
+    affines = (inv[:, :, 0, None] * src[:, None, 0] + inv[:, :, 1, None] * src[:, None, 1]
+               + inv[:, :, 2, None] * src[:, None, 2])
+    return affines, areas
 
 
 def piecewise_affine_maps(source: np.ndarray, target: np.ndarray, triangles: np.ndarray,
@@ -217,7 +231,10 @@ def paint_closed_eyes(frame: np.ndarray, landmarks: np.ndarray, closure: float,
         shape = (high[1] - low[1], high[0] - low[0])
         region = frame[low[1]:high[1], low[0]:high[0]].astype(np.float64)
         lid = polygon_alpha(shape, catmull_rom_closed(points), low)
-        lid = cv2.GaussianBlur(cv2.dilate(lid, np.ones((5, 5), np.uint8)), (0, 0), 1.0)
+        # blurred as 8-bit: OpenCV's float filters round differently with and without AVX/FMA (its
+        # 8-bit ones do not), and the corpus must be the same bytes on any x86-64 CPU
+        lid8 = cv2.dilate(np.round(lid * 255).astype(np.uint8), np.ones((5, 5), np.uint8))
+        lid = cv2.GaussianBlur(lid8, (0, 0), 1.0).astype(np.float32) / 255.0
         region = blend(region, colour, strength * np.clip(lid, 0.0, 1.0))
         lash = polyline_alpha(shape, lash_line(points), low)
         region = blend(region, np.array([85.0, 60.0, 50.0]), 0.6 * strength * lash)
@@ -244,7 +261,7 @@ def render_frame(template: face_template.FaceTemplate, landmarks: np.ndarray, cl
     target = articulation.frame_mesh_points(template, landmarks, pose)
     map_x, map_y = piecewise_affine_maps(template.mesh_points, target, template.triangles,
                                          template.image.shape[:2])
-    frame = cv2.remap(template.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    frame = resample.remap(template.image, map_x, map_y, cv2.BORDER_REFLECT)
     paint_mouth(frame, landmarks, template.face_width)
     paint_closed_eyes(frame, landmarks, closure, template.eyelid_rgb)
     return frame

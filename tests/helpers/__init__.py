@@ -10,8 +10,9 @@ import yaml
 from tests.conftest import ROOT
 
 
-def dvc(proj, *args):
-    env = dict(os.environ, PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"])
+def dvc(proj, *args, env: dict | None = None):
+    """Run ``dvc ARGS`` in ``proj`` (this interpreter's environment first on PATH, ``env`` added); its output."""
+    env = dict(os.environ, PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"], **(env or {}))
     r = subprocess.run([sys.executable, "-m", "dvc", *args], cwd=proj, env=env, capture_output=True, text=True,
                        timeout=2400)        # a whole repro: ~5 min alone on 2 cores, far more on a loaded machine
     assert r.returncode == 0, f"dvc {' '.join(args)} failed:\n{r.stdout}\n{r.stderr}"
