@@ -10,15 +10,16 @@ clip's own audio through ``render_mesh`` (dense textured head, front | three-qua
                    displacement added to the rest landmark) against the clip's tracked frontal landmarks,
                    mean distance (mm; the outer eye corners are 90 mm apart), and the same for the
                    network's raw prediction — the mesh should add nothing
-    emotion        mean skin displacement (mm) between two emotion candidates, upper face (brows, eyes,
-                   forehead) and lower face: the network predicts lower-face points only
+    emotion        mean skin displacement (mm) between emotion candidates 0 and 1 of the model on the first
+                   held-out clip, upper face (brows, eyes, forehead) and lower face: the network predicts
+                   lower-face points only
     speed          render of the demo audio with the demo model: deform, render + encode (ms/frame),
                    medians of ``--repeats``
 
     python bench/head_render.py [--model runs/grid_s1/models/karras] [--store runs/grid_s1/store]
-                                [--clips 12] [--repeats 3]
+                                [--clips 12] [--repeats 3] [--page-only]
 
-Writes results/head_render.json (commit, date, machine), results/head_render.png (frames: closed,
+Writes results/head_render.json (commit, date, machine), results/head_render.jpg (frames: closed,
 open and rounded mouth, original | front | three-quarter) and docs/head_render.md.
 """
 from __future__ import annotations
@@ -75,7 +76,7 @@ def clip_figures(video: dict, model: str, lmg, fr, tw, work: Path) -> dict:
     """Render one held-out clip with its own audio; re-track; the vertex error of its frames."""
     out = work / f"{video['name']}.mp4"
     render_mesh(video["path"], model, str(out), video["fps"], 512)
-    frames = [f for _, f in media.iter_frames(str(out), "rgb")]
+    frames = [f for _, f in media.iter_frames(str(out), "rgb24")]
     front = [f[:, : f.shape[1] // 2] for f in frames]
     a, b = video["first_frame"], video["first_frame"] + video["n_frames"]
     lms = np.asarray(lmg["landmarks"][a:b], np.float64)
@@ -102,20 +103,22 @@ def clip_figures(video: dict, model: str, lmg, fr, tw, work: Path) -> dict:
 
 def pick_frames(rendered: np.ndarray, truth: np.ndarray) -> dict:
     """Frames with the mouth closed, open and (among the half-open) least wide — by the original's opening."""
+    n = min(len(truth), len(rendered))
+    truth, rendered = truth[:n], rendered[:n]
     t = np.where(np.isfinite(truth) & np.isfinite(rendered), truth, np.nan)
     closed, opened = int(np.nanargmin(t)), int(np.nanargmax(t))
     mid = np.flatnonzero(t > np.nanmedian(t))
     return dict(closed=closed, open=opened, mid=int(mid[len(mid) // 2]) if len(mid) else opened)
 
 
-def emotion_effect(audio: str, model: str) -> dict | None:
+def emotion_effect(audio: str, model: str, fps: float) -> dict | None:
     """Mean skin displacement (mm) between emotion candidates 0 and 1: upper face (above the nose) and lower."""
     from pipeline.models.mouth_prediction import check_emotion
     try:
         check_emotion(model, 1)
     except Exception:
         return None
-    h0, h1 = animate_head(audio, model, 25.0, emotion=0), animate_head(audio, model, 25.0, emotion=1)
+    h0, h1 = animate_head(audio, model, fps, emotion=0), animate_head(audio, model, fps, emotion=1)
     d = np.linalg.norm(h0.motion.skin - h1.motion.skin, axis=-1).mean(0)
     upper = h0.mesh.skin.vertices[:, 1] < 20.0                   # above the lower-face window: brows, eyes
     return dict(upper_face_mm=float(d[upper].mean()), lower_face_mm=float(d[~upper].mean()))
@@ -130,8 +133,8 @@ def speed(audio: str, model: str, repeats: int, work: Path) -> dict:
 
 
 def figure(video: dict, row: dict, out_png: Path, work: Path) -> None:
-    src = [f for _, f in media.iter_frames(video["path"], "rgb")]
-    ren = [f for _, f in media.iter_frames(str(work / f"{video['name']}.mp4"), "rgb")]
+    src = [f for _, f in media.iter_frames(video["path"], "rgb24")]
+    ren = [f for _, f in media.iter_frames(str(work / f"{video['name']}.mp4"), "rgb24")]
     picks = pick_frames(np.array(row["rendered"]), np.array(row["truth"]))
     rows = []
     for label, i in picks.items():
@@ -140,7 +143,7 @@ def figure(video: dict, row: dict, out_png: Path, work: Path) -> None:
         strip = np.hstack([s, ren[i]])
         cv2.putText(strip, f"{label} (frame {i})", (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2)
         rows.append(strip)
-    cv2.imwrite(str(out_png), cv2.cvtColor(np.vstack(rows), cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(out_png), cv2.cvtColor(np.vstack(rows), cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 92])
 
 
 def write_page(res: dict, path: Path) -> None:
@@ -166,10 +169,11 @@ def write_page(res: dict, path: Path) -> None:
               f"**{s['frames_per_second']:.1f} frames/s**.", ""]
     if res.get("emotion"):
         e = res["emotion"]
-        lines += [f"Emotion 0 vs 1: the skin moves {e['lower_face_mm']:.2f} mm (lower face) and "
+        lines += [f"Emotion 0 vs 1 ({res['clips'][0]['clip']}): the skin moves {e['lower_face_mm']:.2f} mm (lower face) and "
                   f"{e['upper_face_mm']:.2f} mm (upper face) on average — Karras' network here predicts the "
                   "42 lower-face points (jaw, nose, lips), so the emotion code can change only those.", ""]
-    lines += ["![frames](head_render.png)", ""]
+    lines += ["Frames of the median clip at full size — original | front | three-quarter, mouth closed, open and "
+              "half-open (by the original's opening):", "", "![frames](head_render.jpg)", ""]
     path.write_text("\n".join(lines))
 
 
@@ -181,8 +185,12 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--speed-model", default="models/karras")
     ap.add_argument("--speed-audio", default="data/synthetic_speaker/speaker_03.mp4")
+    ap.add_argument("--page-only", action="store_true", help="rewrite docs/head_render.md from results/head_render.json")
     a = ap.parse_args()
     os.chdir(ROOT)
+    if a.page_only:
+        write_page(json.loads((ROOT / "results" / "head_render.json").read_text()), ROOT / "docs" / "head_render.md")
+        return 0
     store = Path(a.store)
     paths = [str(store / f"{n}.zarr") for n in ("ingest", "landmarks", "frontalize")]
     if "head_texture" not in (load_speaker(a.model) or {}):
@@ -201,10 +209,11 @@ def main() -> int:
         best = int(np.argsort([c["corr_lag0"] for c in clips])[len(clips) // 2])     # the median clip
         out_dir = ROOT / "results"
         out_dir.mkdir(exist_ok=True)
-        figure(val[best], clips[best], out_dir / "head_render.png", work)
+        figure(val[best], clips[best], out_dir / "head_render.jpg", work)
         sp = speed(a.speed_audio, a.speed_model, a.repeats, work)
-    truth = np.concatenate([c["truth"] for c in clips])
-    rend = np.concatenate([c["rendered"] for c in clips])
+    n = [min(len(c["truth"]), len(c["rendered"])) for c in clips]
+    truth = np.concatenate([c["truth"][:k] for c, k in zip(clips, n)])
+    rend = np.concatenate([c["rendered"][:k] for c, k in zip(clips, n)])
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     res = dict(commit=commit, date=datetime.datetime.now().isoformat(timespec="minutes"),
                machine=f"{platform.machine()}, {os.cpu_count()} cores", model=a.model, store=a.store,
@@ -214,11 +223,11 @@ def main() -> int:
                mean_vertex_error_mm=float(np.mean([c["vertex_error_mm"] for c in clips])),
                mean_prediction_error_mm=float(np.mean([c["prediction_error_mm"] for c in clips])),
                texture=list(load_speaker(a.model)["head_texture"].shape), speed=sp,
-               emotion=emotion_effect(a.speed_audio, a.speed_model))
+               emotion=emotion_effect(val[0]["path"], a.model, val[0]["fps"]))
     (ROOT / "results" / "head_render.json").write_text(json.dumps(res, indent=1) + "\n")
     page = ROOT / "docs" / "head_render.md"
     write_page(res, page)
-    (ROOT / "docs" / "head_render.png").write_bytes((ROOT / "results" / "head_render.png").read_bytes())
+    (ROOT / "docs" / "head_render.jpg").write_bytes((ROOT / "results" / "head_render.jpg").read_bytes())
     print(page.read_text())
     return 0
 

@@ -168,9 +168,10 @@ def head_mesh(surface: Surface, window: HeadWindow, landmarks_mm: np.ndarray, st
     bx, by = np.meshgrid(cxs, cys)
     bowl = 8 + 14 * np.clip(1 - ((bx - cx) / (mw / 2 + 4)) ** 2 - ((by - cy - 9) / 21) ** 2, 0, 1)
     cavity = _grid_part(surface, cxs, cys, bowl)
-    # the teeth: strips 4 mm behind the lips, 0.6 of the mouth wide, 10 mm tall from the cut
+    # the teeth: strips TEETH_DEPTH_MM behind the skin, 0.6 of the mouth wide; the upper ones reach
+    # 1.5 mm below the line of the shut lips (they show once the mouth opens), the lower ones start 1 mm under it
     txs = np.linspace(cx - 0.3 * mw, cx + 0.3 * mw, 13)
-    upper = _grid_part(surface, txs, np.linspace(cy - 10, cy - 1.0, 5), TEETH_DEPTH_MM)
+    upper = _grid_part(surface, txs, np.linspace(cy - 10, cy + 1.5, 5), TEETH_DEPTH_MM)
     lower = _grid_part(surface, txs, np.linspace(cy + 1.0, cy + 10, 5), TEETH_DEPTH_MM)
     return HeadMesh(skin, side, cavity, upper, lower, slit)
 
