@@ -12,3 +12,6 @@ Rooms, lowest first (a module imports its own room and lower rooms only; ``tests
                ensembles, the speaker bank, and ``mouth_prediction`` — the interface every family answers
     measures/  mouth-shape and lip-sync measures
 """
+from pipeline.simd_level import pin_avx2
+
+pin_avx2()          # before any numeric library loads: the same bytes on every x86-64 CPU with AVX2

@@ -20,6 +20,16 @@ def shared(*parts) -> Path:
     return p
 
 
+# the longest modules first (each runs in one process under ``-n 2``: a module's fixture is built once), so the
+# two processes finish together instead of one starting the longest module when the other is nearly done
+LONGEST_FIRST = ("test_speak_held_out.py", "test_dvc_pipeline.py", "test_determinism.py", "test_dask_cluster.py")
+
+
+def pytest_collection_modifyitems(items):
+    order = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: order.get(item.path.name, len(order)))       # stable: the rest keep file order
+
+
 @pytest.fixture(autouse=True)
 def _project_cwd(monkeypatch):
     monkeypatch.chdir(ROOT)
@@ -39,7 +49,7 @@ def face3d():
 def grid_preprocessed(tmp_path_factory):
     """12 GRID s1 clips through ingest → landmarks → frontalize (once per session): its folder
     holds ingest.zarr, landmarks.zarr, frontalize.zarr and params.yaml."""
-    from tests.stage_runner import make_params, run_preprocessing
+    from tests.helpers.stages import make_params, run_preprocessing
     clips = sorted(shared("grid_s1", "video").glob("*.mp4"))[:12]
     out = tmp_path_factory.mktemp("grid12")
     run_preprocessing(make_params(out, [str(c) for c in clips]))

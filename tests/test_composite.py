@@ -10,7 +10,7 @@ from stages.composite.render import inverse_map, render, texture_footprint
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
 from pipeline.face.canonical import Surface, TextureWindow
 from stages.frontalize.warp import frontal_texture
-from tests.test_frontal_warp import render as splat
+from tests.helpers.splat import render as splat
 
 WINDOW = TextureWindow(-80.0, 20.0, 160 / 128, 128)       # params.yaml: texture_x_mm, texture_y_mm, size
 

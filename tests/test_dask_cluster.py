@@ -22,7 +22,7 @@ import pytest
 from pipeline.errors import LipsynthError
 from pipeline.params import ClusterSecurity
 from tests.conftest import ROOT, shared
-from tests.stage_runner import make_params, run_preprocessing
+from tests.helpers.stages import make_params, run_preprocessing
 
 N_CLIPS = 12            # = grid_preprocessed: the LocalCluster reference
 
@@ -119,6 +119,7 @@ def leftovers(folder: Path) -> list[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.real
 def test_stores_are_byte_identical_to_a_local_cluster_run(tmp_path, grid_preprocessed):
     with dask_cluster(tmp_path / "cluster") as cluster:
         params = make_params(tmp_path, clips(), cluster={"address": cluster.address})
@@ -133,6 +134,7 @@ def test_stores_are_byte_identical_to_a_local_cluster_run(tmp_path, grid_preproc
 
 
 @pytest.mark.slow
+@pytest.mark.real
 def test_in_process_stores_are_byte_identical_to_a_local_cluster_run(tmp_path, grid_preprocessed):
     """``cluster.address: in-process`` (how ``speak`` ingests its one target) runs the same tasks here."""
     params = make_params(tmp_path, clips(), cluster={"address": "in-process"})
@@ -150,6 +152,7 @@ def scheduler_transitions(client, keys):
 
 
 @pytest.mark.slow
+@pytest.mark.real
 def test_a_worker_killed_in_the_middle_of_landmarks(tmp_path, grid_preprocessed):
     """SIGKILL one of two workers (nanny and worker process) once landmark shards are being
     written and it is running a task: the stage finishes on the survivor and its store is
@@ -270,6 +273,7 @@ def test_cluster_security_maps_onto_dask_security(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.real
 def test_a_stage_runs_over_tls_and_a_stranger_is_refused(tmp_path, grid_preprocessed):
     """`dask scheduler --protocol tls` and a worker with certificates of a throwaway CA; the stage
     connects with cluster.security. A client with another CA's certificate, or plain tcp, is refused."""

@@ -7,7 +7,7 @@ import yaml
 
 from tests.helpers import copy_project, dvc
 
-TINY = {
+TINY_PIPELINE = {  # every stage, as small as it runs
     "synthetic_speaker": {"n_videos": 3, "seconds_per_video": 4.0},
     "train": {"steps": 15, "baselines": False},
     "brand": {"states": 6, "iterations": 10, "baseline": False},
@@ -19,7 +19,7 @@ TINY = {
 
 
 def run_copy(folder):
-    dvc(copy_project(folder, TINY), "repro")
+    dvc(copy_project(folder, TINY_PIPELINE), "repro")
     return yaml.safe_load((folder / "dvc.lock").read_text())["stages"]
 
 

@@ -19,6 +19,7 @@ import zarr
 from pipeline.params import load_params
 from tests.conftest import ROOT
 from tests.helpers import copy_project, dvc, dvc_status
+from tests.helpers.media import write_wav
 
 
 @contextlib.contextmanager
@@ -479,14 +480,6 @@ def test_repro_ends_with_a_lip_synced_mp4_of_the_synthetic_speaker(project):
     assert corr_source > corr_target + 0.3, (corr_source, corr_target)
 
 
-def write_wav(path, samples, rate, channels=1):
-    import wave
-    pcm = np.clip(np.repeat(samples[:, None], channels, 1) * 32767, -32768, 32767).astype("<i2")
-    with wave.open(str(path), "wb") as w:
-        w.setnchannels(channels); w.setsampwidth(2); w.setframerate(rate)
-        w.writeframes(pcm.tobytes())
-
-
 def speak(project, tmp_path, *args):
     return subprocess.run([sys.executable, "-m", "lipsynth.cli", "speak", "--model", str(project / "models" / "lstm"),
                            "--cache", str(tmp_path / "cache"), *map(str, args)],
@@ -534,7 +527,7 @@ def test_speak_into_a_target_without_an_audio_track(project, tmp_path):
 
 @pytest.mark.slow
 def test_speak_refuses_a_target_without_a_face_and_keeps_the_old_output(project, tmp_path):
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     rng = np.random.default_rng(0)
     noface = tmp_path / "wall.mp4"
     make_clip(noface, frames=rng.integers(0, 255, (50, 256, 320, 3), dtype=np.uint8))
@@ -556,7 +549,7 @@ def test_speak_into_a_phone_video_stored_sideways(project, tmp_path):
     """A portrait phone video: frames stored turned a quarter counter-clockwise, a display rotation
     of 90° in the track header. speak finds the face and its output plays upright like the input."""
     from pipeline.io import media
-    from tests.media_fixtures import set_display_rotation
+    from tests.helpers.media import set_display_rotation
     source = project / "data" / "synthetic_speaker" / "speaker_03.mp4"
     info = media.probe(source)
     phone = tmp_path / "phone.mp4"
@@ -581,7 +574,7 @@ def test_speak_into_a_variable_frame_rate_video(project, tmp_path):
     with every third frame missing. speak's output is constant-rate, as long as the input, and
     each output frame shows the input's picture of that moment (the face is composited in place)."""
     from pipeline.io import media
-    from tests.media_fixtures import make_vfr_clip
+    from tests.helpers.media import make_vfr_clip
     source = project / "data" / "synthetic_speaker" / "speaker_03.mp4"
     info = media.probe(source)
     frames = np.stack([f for _, f in media.iter_frames(source)])
@@ -606,6 +599,7 @@ def test_speak_into_a_variable_frame_rate_video(project, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.real
 def test_speak_into_real_footage_of_another_speaker(project, tmp_path):
     """HDTF footage (512², 25 fps) as target, radio speech (16 kHz stereo WAV) as audio, the
     synthetic speaker's model (re-targeted onto the real mouth): only the lower face changes."""
@@ -694,7 +688,7 @@ def test_a_library_change_reruns_exactly_the_stages_that_import_it(project):
 def test_repro_ends_with_the_report_page_and_it_renders_in_chromium(project, tmp_path):
     """`dvc repro` on a fresh copy writes reports/<corpus>/index.html with its videos; the page
     loads in headless Chromium without errors (skipped when Chromium is absent)."""
-    from tests.test_report import assert_page_renders, check_in_browser
+    from tests.helpers.browser import assert_page_renders, check_in_browser
     folder = project / yaml.safe_load((project / "params.yaml").read_text())["report"]["out"]
     page = folder / "index.html"
     assert page.is_file() and (project / "metrics" / "evaluate.json").is_file()

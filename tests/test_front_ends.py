@@ -19,6 +19,7 @@ def grid_words(name):
 
 
 @pytest.mark.parametrize("name", ["bgaa6n", "lrae3s"])
+@pytest.mark.real
 def test_phones_fall_inside_words_and_silence_outside(name):
     """Against GRID's word alignment: frames inside words are mostly recognised as phones, frames
     in the alignment's leading / trailing silence mostly as silence."""
@@ -40,6 +41,7 @@ def test_phones_fall_inside_words_and_silence_outside(name):
     assert len(np.unique(ind[speech].argmax(1))) >= 10
 
 
+@pytest.mark.real
 def test_phones_of_a_clip_do_not_depend_on_what_was_decoded_before():
     """The phonetic store must be deterministic: a worker decodes videos in any order."""
     a = load_audio(shared("hdtf", "RD_Radio36_000.wav"))       # 16 s of another voice and channel

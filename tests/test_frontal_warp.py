@@ -7,6 +7,7 @@ from pipeline.face.geometry import intrinsics, project
 from stages.frontalize.chin_extension import extend_depth, face_depth_on_grid
 from pipeline.face.canonical import Surface, TextureWindow, frontal_landmarks
 from stages.frontalize.warp import frontal_texture
+from tests.helpers.splat import render
 
 
 @pytest.fixture(scope="module")
@@ -17,25 +18,6 @@ def scene(face3d):
     surface = Surface(extend_depth(np.nan_to_num(d), known), xs[0], ys[0], step)
     photo = skimage.data.astronaut()[40:340, 100:320]       # any real texture, 1 px per mm
     return surface, photo
-
-
-def render(surface, photo, rvec, tvec, K, size=(320, 400), density=4):
-    """Point-splat renderer with a z-buffer (far points drawn first, near ones overwrite)."""
-    h, w = photo.shape[:2]
-    v, u = np.mgrid[0:h * density, 0:w * density] / density
-    x, y = u - 110.0, v - 80.0
-    z = surface.z(x, y)
-    pts = np.stack([x, y, z], -1).reshape(-1, 3)
-    colours = photo[v.astype(int).ravel(), u.astype(int).ravel()]
-    from pipeline.face.geometry import rotation
-    cam_z = (pts @ rotation(rvec).T + tvec)[:, 2]
-    uv = np.round(project(pts, rvec, tvec, K)).astype(int)
-    order = np.argsort(-cam_z)
-    uv, colours = uv[order], colours[order]
-    ok = (uv[:, 0] >= 0) & (uv[:, 0] < size[0]) & (uv[:, 1] >= 0) & (uv[:, 1] < size[1])
-    img = np.zeros((size[1], size[0], 3), np.uint8)
-    img[uv[ok, 1], uv[ok, 0]] = colours[ok]
-    return img
 
 
 def test_frontal_warp_undoes_pose(scene, face3d):

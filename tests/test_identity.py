@@ -1,5 +1,6 @@
 """Face identity: one person's clips are close, two people are not (real GRID footage)."""
 import numpy as np
+import pytest
 
 from pipeline.face import dlib_face
 from pipeline.face import identity
@@ -18,6 +19,7 @@ def descriptor_of(path, frames=(5, 35, 65)):
     return identity.identity(np.stack(out))
 
 
+@pytest.mark.real
 def test_same_speaker_is_closer_than_another_speaker():
     s1a = descriptor_of(shared("grid_s1", "video", "bbaf2n.mp4"))
     s1b = descriptor_of(shared("grid_s1", "video", "bgan4n.mp4"))
@@ -33,6 +35,7 @@ def test_crop_landmarks_inverts_the_crop_transform():
     np.testing.assert_allclose(np.asarray(crop[:2]) + crop[2] * q, lm)
 
 
+@pytest.mark.real
 def test_descriptors_read_from_a_store_equal_those_of_the_frames(tmp_path):
     """``stored_descriptors`` (the task ``speak`` runs on its workers) = ``frame_descriptors`` here."""
     import zarr

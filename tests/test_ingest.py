@@ -14,7 +14,7 @@ from pipeline.errors import BadInputError
 from pipeline.params import as_dict, load_params
 from stages.ingest.ingest import decode_video, layout, list_videos, probe_video, split_videos
 from tests.conftest import ROOT, shared
-from tests.media_fixtures import face_frames, make_clip
+from tests.helpers.media import face_frames, make_clip
 
 
 @pytest.fixture
@@ -83,6 +83,7 @@ def test_list_videos_folder_glob_and_errors(tmp_path):
         list_videos(str(tmp_path / "nope.mp4"))
 
 
+@pytest.mark.real
 def test_bad_inputs_name_file_and_problem(tmp_path, ingest_params):
     zero = tmp_path / "zero.mp4"
     zero.write_bytes(b"")
@@ -106,6 +107,7 @@ def test_bad_inputs_name_file_and_problem(tmp_path, ingest_params):
         media.probe(shared("hdtf", "RD_Radio31_000.wav"))
 
 
+@pytest.mark.real
 def test_real_video_without_audio_fails_cleanly_through_the_cli(tmp_path):
     noaudio = shared("obama", "obama_noaudio.mp4")
     params = load_params(ROOT / "params.yaml")
@@ -147,6 +149,7 @@ def mp2_in_mpegts(path, damaged: set, seconds=2.0, sr=44100):
     out.close()
 
 
+@pytest.mark.real
 def test_isolated_damaged_audio_packets_are_concealed_and_counted(tmp_path, caplog):
     """A real clip with one damaged MP2 packet among 111 (GRID s4 bbaf2a) decodes, with a warning
     that counts it; its length matches the clean clips of the same corpus."""

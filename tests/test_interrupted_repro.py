@@ -15,7 +15,7 @@ import yaml
 
 from tests.helpers import copy_project, dvc
 
-TINY = {"synthetic_speaker": {"n_videos": 3, "seconds_per_video": 4.0},   # 3 videos = 3 landmark tasks
+THREE_SHORT_VIDEOS = {"synthetic_speaker": {"n_videos": 3, "seconds_per_video": 4.0},   # 3 videos = 3 landmark tasks
         "cluster": {"n_workers": 1}}                                         # (cluster is no stage's dependency)
 
 
@@ -73,7 +73,7 @@ def repro_killed_in_landmarks(proj: Path) -> str:
 
 @pytest.mark.slow
 def test_repro_after_a_sigkill_mid_stage_matches_an_uninterrupted_run(tmp_path):
-    a = copy_project(tmp_path / "a", TINY)
+    a = copy_project(tmp_path / "a", THREE_SHORT_VIDEOS)
     dvc(a, "repro", "ingest")                                  # synthetic speaker + ingest, shared by both runs
     b = tmp_path / "b"
     shutil.copytree(a, b, symlinks=True, ignore=lambda d, names: ["tmp"] if Path(d).name == ".dvc" else [])

@@ -7,7 +7,7 @@ import pytest
 
 from pipeline.errors import BadInputError
 from pipeline.io import media
-from tests.media_fixtures import face_frames, make_anamorphic_clip, make_clip, make_vfr_clip, set_display_rotation
+from tests.helpers.media import face_frames, make_anamorphic_clip, make_clip, make_vfr_clip, set_display_rotation
 
 
 def marked_frames(n=6, size=(96, 64)):

@@ -14,7 +14,7 @@ def personalize(*args):
 
 
 def test_too_short_footage_says_how_much_is_needed(tmp_path):
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "five_seconds.mp4"
     make_clip(clip, n_frames=125)
     line = one_error_line(personalize(clip, "--out", tmp_path / "m", "--work", tmp_path / "w"))
@@ -23,7 +23,7 @@ def test_too_short_footage_says_how_much_is_needed(tmp_path):
 
 
 def test_a_base_that_is_not_a_model_folder_is_one_line(tmp_path):
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "clip.mp4"
     make_clip(clip, n_frames=50)
     line = one_error_line(personalize(clip, "--out", tmp_path / "m", "--base", tmp_path, "--work", tmp_path / "w"))
@@ -32,7 +32,7 @@ def test_a_base_that_is_not_a_model_folder_is_one_line(tmp_path):
 
 def test_clips_too_short_to_split_are_pooled_and_the_last_clip_held_out(tmp_path):
     from lipsynth.personalize import cut_footage, held_out_line
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clips = []
     for k in range(4):                                           # four 4-s clips, each shorter than 1.5 segments
         clips.append(tmp_path / f"clip{k}.mp4")
@@ -45,7 +45,7 @@ def test_clips_too_short_to_split_are_pooled_and_the_last_clip_held_out(tmp_path
 
 def test_long_clips_keep_their_own_names_and_split(tmp_path):
     from lipsynth.personalize import cut_footage
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "long.mp4"
     make_clip(clip, n_frames=150)
     segments = cut_footage([clip], 3.0, tmp_path / "footage", "anchor")
@@ -53,7 +53,7 @@ def test_long_clips_keep_their_own_names_and_split(tmp_path):
 
 
 def test_a_single_clip_too_short_even_pooled_is_refused(tmp_path):
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "short.mp4"
     make_clip(clip, n_frames=50)
     line = one_error_line(personalize(clip, "--out", tmp_path / "m", "--work", tmp_path / "w", "--segment-seconds", "3"))
@@ -64,7 +64,7 @@ def test_a_single_clip_too_short_even_pooled_is_refused(tmp_path):
 @pytest.mark.slow
 def test_a_photo_whose_mouth_never_moves_is_refused_before_training(tmp_path):
     """20 s of a still photo (drifting, with a hum): preprocessed, then one line before training."""
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "photo.mp4"
     make_clip(clip, n_frames=500)
     r = personalize(clip, "--out", tmp_path / "m", "--work", tmp_path / "w")
@@ -75,7 +75,7 @@ def test_a_photo_whose_mouth_never_moves_is_refused_before_training(tmp_path):
 
 def test_a_base_of_another_family_is_one_line_before_any_work(tmp_path):
     import json
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "clip.mp4"
     make_clip(clip, n_frames=50)
     base = tmp_path / "brand"
@@ -90,7 +90,7 @@ def test_a_base_of_another_family_is_one_line_before_any_work(tmp_path):
 def test_a_damaged_shipped_base_is_one_line(tmp_path):
     import shutil
     from pipeline.models.base_model import SHIPPED
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "clip.mp4"
     make_clip(clip, n_frames=50)
     base = tmp_path / "base"

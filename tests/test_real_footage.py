@@ -6,7 +6,7 @@ import zarr
 from pipeline.face.dlib_face import IOD_MM
 
 from tests.conftest import shared
-from tests.stage_runner import make_params, run_preprocessing
+from tests.helpers.stages import make_params, run_preprocessing
 
 STABLE = [36, 39, 42, 45, 27, 28, 29, 30, 31, 33, 35]   # eye corners and nose
 

@@ -6,14 +6,11 @@ Slow: headless Chromium (DevTools protocol) loads a page from disk — no consol
 <video> reaches readyState ≥ 2 with the right duration, every plot rendered — and saves a
 full-page screenshot to the test's temp dir.
 """
-import base64
 import json
 import math
 import re
-import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +21,7 @@ from pipeline.params import Params, as_dict, parse
 from stages.evaluate import evaluate
 from stages.report import report
 from tests.conftest import ROOT
+from tests.helpers.browser import assert_page_renders, check_in_browser
 
 TRAIN = {"model": "lstm", "delay_steps": 20,
          "val": {"mouth_error_px": 0.94, "mouth_error_iod_pct": 1.31, "av_within_one_frame": 1.0,
@@ -209,109 +207,6 @@ def test_lipsynth_report_writes_the_folder_and_prints_the_page_path(tmp_path):
 
 
 # ---------------------------------------------------------------- slow: a real browser
-
-def chromium() -> str:
-    exe = shutil.which("chromium") or shutil.which("chromium-browser")
-    if exe is None:
-        pytest.skip("chromium not installed (Debian package `chromium`; .ci/run installs it when it can)")
-    return exe
-
-
-class DevTools:
-    """A minimal Chrome DevTools protocol client over one websocket (flat sessions)."""
-
-    def __init__(self, url: str):
-        import websocket
-        self.ws = websocket.create_connection(url, timeout=60, suppress_origin=True)
-        self.next_id, self.events = 0, []
-
-    def call(self, method: str, session: str | None = None, **params):
-        self.next_id += 1
-        msg = {"id": self.next_id, "method": method, "params": params}
-        if session:
-            msg["sessionId"] = session
-        self.ws.send(json.dumps(msg))
-        while True:
-            r = json.loads(self.ws.recv())
-            if r.get("id") == self.next_id:
-                if "error" in r:
-                    raise RuntimeError(f"{method}: {r['error']}")
-                return r.get("result", {})
-            self.events.append(r)
-
-    def evaluate(self, session: str, expression: str):
-        r = self.call("Runtime.evaluate", session, expression=expression, returnByValue=True, awaitPromise=True)
-        if "exceptionDetails" in r:
-            raise RuntimeError(f"{expression[:60]}…: {r['exceptionDetails']}")
-        return r["result"].get("value")
-
-
-CHECKS = """(() => ({
-  ready: document.readyState,
-  videos: [...document.querySelectorAll('video')].map(v => ({src: v.getAttribute('src'), readyState: v.readyState,
-      duration: v.duration, expected: parseFloat(v.dataset.duration), error: v.error && v.error.code})),
-  svgs: [...document.querySelectorAll('svg')].map(s => {const r = s.getBoundingClientRect();
-      return {children: s.querySelectorAll('path,line,text,use').length, width: r.width, height: r.height};}),
-}))()"""
-
-
-def check_in_browser(page: Path, shot: Path) -> dict:
-    pytest.importorskip("websocket", reason="websocket-client (test extra) drives Chromium")
-    profile = shot.parent / "chromium-profile"
-    proc = subprocess.Popen([chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
-                             "--remote-debugging-port=0", f"--user-data-dir={profile}", "--window-size=1280,900",
-                             "--autoplay-policy=no-user-gesture-required", "about:blank"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        port_file = profile / "DevToolsActivePort"
-        for _ in range(300):
-            if port_file.is_file() and len(port_file.read_text().split()) >= 2:
-                break
-            time.sleep(0.1)
-        else:
-            pytest.fail("chromium did not open its DevTools port within 30 s")
-        port, path = port_file.read_text().split()[:2]
-        dt = DevTools(f"ws://127.0.0.1:{port}{path}")
-        target = dt.call("Target.createTarget", url="about:blank")["targetId"]
-        s = dt.call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
-        for domain in ("Page", "Runtime", "Log"):
-            dt.call(f"{domain}.enable", s)
-        dt.call("Page.navigate", s, url=page.absolute().as_uri())
-        deadline = time.monotonic() + 60
-        while True:
-            state = dt.evaluate(s, CHECKS)
-            loaded = state["ready"] == "complete" and all(v["readyState"] >= 3 or v["error"] for v in state["videos"])
-            if loaded or time.monotonic() > deadline:
-                break
-            time.sleep(0.25)
-        time.sleep(0.5)                  # let the media controls drop their loading spinner
-        state = dt.evaluate(s, CHECKS)
-        size = dt.call("Page.getLayoutMetrics", s)["cssContentSize"]
-        png = dt.call("Page.captureScreenshot", s, format="png", captureBeyondViewport=True,
-                      clip={"x": 0, "y": 0, "width": size["width"], "height": size["height"], "scale": 1})["data"]
-        shot.write_bytes(base64.b64decode(png))
-        errors = [e["params"] for e in dt.events if e.get("method") == "Runtime.exceptionThrown"
-                  or (e.get("method") == "Runtime.consoleAPICalled" and e["params"].get("type") == "error")
-                  or (e.get("method") == "Log.entryAdded" and e["params"]["entry"].get("level") == "error")]
-        dt.call("Browser.close")
-        return dict(state, errors=errors)
-    finally:
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-
-
-def assert_page_renders(state: dict, n_videos: int, n_svgs: int) -> None:
-    assert state["errors"] == [], state["errors"]
-    assert len(state["videos"]) == n_videos
-    for v in state["videos"]:
-        assert v["readyState"] >= 2, f"{v['src']}: readyState {v['readyState']} (media error {v['error']})"
-        assert v["duration"] == pytest.approx(v["expected"], abs=0.1), v
-    assert len(state["svgs"]) == n_svgs
-    for s in state["svgs"]:
-        assert s["children"] > 10 and s["width"] > 100 and s["height"] > 50, s
-
 
 @pytest.mark.slow
 def test_the_report_renders_in_headless_chromium(tmp_path):

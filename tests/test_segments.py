@@ -28,7 +28,7 @@ def test_time_split_holds_out_the_end_of_each_video_and_keeps_whole_videos_for_t
 
 
 def test_cut_video_writes_synced_segments_that_add_up_to_the_video(tmp_path):
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "person.mp4"
     make_clip(clip, n_frames=115, tone_at=3.0)                      # 4.6 s; a loud tone from 3 s of audio
     parts = cut_video(clip, 2.0, tmp_path / "seg")
@@ -43,7 +43,7 @@ def test_cut_video_writes_synced_segments_that_add_up_to_the_video(tmp_path):
 
 
 def test_too_short_footage_and_footage_without_audio_are_one_line(tmp_path):
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     short, mute = tmp_path / "short.mp4", tmp_path / "mute.mp4"
     make_clip(short, n_frames=50)
     make_clip(mute, n_frames=50, audio=False)

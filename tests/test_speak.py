@@ -3,6 +3,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from tests.conftest import ROOT, shared
 from tests.helpers import one_error_line
@@ -13,6 +14,7 @@ def speak(*args):
                           capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.real
 def test_audio_without_an_audio_track_is_refused_before_preprocessing(tmp_path):
     noaudio = shared("obama", "obama_noaudio.mp4")
     target = shared("obama", "obama_08.mp4")
@@ -23,7 +25,7 @@ def test_audio_without_an_audio_track_is_refused_before_preprocessing(tmp_path):
 
 
 def test_missing_files_and_bad_output_names(tmp_path):
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "clip.mp4"
     make_clip(clip, n_frames=30)
     line = one_error_line(speak("--audio", tmp_path / "nope.wav", "--target", clip, "--out", tmp_path / "o.mp4"))
@@ -33,7 +35,7 @@ def test_missing_files_and_bad_output_names(tmp_path):
 
 
 def test_too_short_audio_is_refused(tmp_path):
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     short = tmp_path / "short.mp4"
     make_clip(short, n_frames=5)                                     # 0.2 s
     line = one_error_line(speak("--audio", short, "--target", short, "--out", tmp_path / "o.mp4",
@@ -43,7 +45,7 @@ def test_too_short_audio_is_refused(tmp_path):
 
 
 def test_missing_output_folder_is_one_line(tmp_path):
-    from tests.media_fixtures import make_clip
+    from tests.helpers.media import make_clip
     clip = tmp_path / "clip.mp4"
     make_clip(clip, n_frames=30)
     line = one_error_line(speak("--audio", clip, "--target", clip, "--out", tmp_path / "nowhere" / "o.mp4"))

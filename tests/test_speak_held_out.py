@@ -32,7 +32,7 @@ def grid_model(tmp_path_factory):
     from stages.pca import pca
     from stages.train import train
     from stages.whisper import whisper
-    from tests.stage_runner import make_params, run_preprocessing
+    from tests.helpers.stages import make_params, run_preprocessing
     clips = [c for c in sorted(shared("grid_s1", "video").glob("*.mp4"))
              if c.stem not in HELD_OUT and c.stem != "pbio7a"][::3]
     out = tmp_path_factory.mktemp("grid_model")
@@ -62,6 +62,7 @@ def yardstick(model_dir, clips, tmp_path):
     return json.loads(js.read_text()), r.stdout + r.stderr
 
 
+@pytest.mark.real
 def test_speak_on_held_out_clips_meets_the_goals(grid_model, tmp_path):
     clips = [shared("grid_s1", "video", f"{c}.mp4") for c in HELD_OUT]
     res, _ = yardstick(grid_model, clips, tmp_path)
@@ -73,6 +74,7 @@ def test_speak_on_held_out_clips_meets_the_goals(grid_model, tmp_path):
     assert summary["sharp"] <= 2.0, summary                       # no scribbled, over-sharp mouths
 
 
+@pytest.mark.real
 def test_speak_reports_same_and_other_speaker(grid_model, tmp_path):
     def run(target, audio):
         out = tmp_path / f"{target.stem}.mp4"
@@ -106,6 +108,7 @@ def tracked_faces(path, to_px: float):
     return np.array(out)
 
 
+@pytest.mark.real
 def test_the_mouth_sits_where_the_tracked_mouth_is_at_1x_and_4x(grid_model, tmp_path):
     """Issue 33: speak into the same held-out clip at its own size and upscaled 4× (1440×1152);
     dlib on output and original agree on the nose and chin (not synthesized) and on the mouth's

@@ -1,8 +1,6 @@
 """pca + train + predict-mouth: pure pieces on toy data (the synthetic-speaker run is in test_dvc_pipeline)."""
 import json
-from fractions import Fraction
 
-import av
 import numpy as np
 import pytest
 import torch
@@ -17,6 +15,7 @@ from pipeline.models.mouth_pca import resample_to_100hz
 from stages.pca.pca import fit_pca
 from stages.train import lstm
 from pipeline.measures.mouth_metrics import lagged_correlation
+from tests.helpers.media import write_wav
 
 P = Train(hidden=16, layers=1, batch_size=20, bptt=50, lr=0.01, steps=540, val_every=9)   # 60 epochs of 9 steps
 
@@ -104,36 +103,27 @@ def test_frame_counts(model_dir, fps, seconds, frames):
     assert np.allclose(out["frame_time"][1], 1 / fps)
 
 
-def write_wav(path, seconds, rate, channels, silent=False):
+def tone_wav(path, seconds, rate, channels, silent=False):
+    """A WAV of a 200 Hz tone switched on and off at 2 Hz (or silence)."""
     t = np.arange(int(seconds * rate)) / rate
     x = np.zeros_like(t) if silent else 0.3 * np.sin(2 * np.pi * 200 * t) * (np.sin(2 * np.pi * 2 * t) > 0)
-    pcm = np.repeat((x * 32767).astype(np.int16)[None], channels, 0)
-    layout = {1: "mono", 2: "stereo", 6: "5.1"}[channels]
-    with av.open(str(path), "w", format="wav") as c:
-        s = c.add_stream("pcm_s16le", rate=rate, layout=layout)
-        fr = av.AudioFrame.from_ndarray(np.ascontiguousarray(pcm.T.reshape(1, -1)), format="s16", layout=layout)
-        fr.sample_rate, fr.pts, fr.time_base = rate, 0, Fraction(1, rate)
-        for p in s.encode(fr):
-            c.mux(p)
-        for p in s.encode():
-            c.mux(p)
-    return path
+    return write_wav(path, x, rate, channels)
 
 
 @pytest.mark.parametrize("rate,channels", [(8000, 1), (22050, 2), (44100, 6), (48000, 2)])
 def test_any_rate_and_channel_count(tmp_path, model_dir, rate, channels):
-    samples = load_audio(write_wav(tmp_path / "a.wav", 2.0, rate, channels))
+    samples = load_audio(tone_wav(tmp_path / "a.wav", 2.0, rate, channels))
     assert abs(len(samples) - 32000) <= 2
     out = predict_mouth(samples, model_dir, 25)
     assert len(out["coeffs"]) == 50 and np.isfinite(out["coeffs"]).all()
 
 
 def test_silent_and_short_audio(tmp_path, model_dir):
-    silent = load_audio(write_wav(tmp_path / "s.wav", 1.0, 16000, 1, silent=True))
+    silent = load_audio(tone_wav(tmp_path / "s.wav", 1.0, 16000, 1, silent=True))
     assert np.all(silent == 0)
     assert np.isfinite(predict_mouth(silent, model_dir, 25)["coeffs"]).all()
     with pytest.raises(BadInputError, match=r"short.wav: audio too short \(0.30 s"):
-        load_audio(write_wav(tmp_path / "short.wav", 0.3, 16000, 1))
+        load_audio(tone_wav(tmp_path / "short.wav", 0.3, 16000, 1))
 
 
 def test_mismatched_model_folders_fail_loudly(tmp_path, model_dir):

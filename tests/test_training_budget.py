@@ -3,7 +3,6 @@ import logging
 
 import numpy as np
 import pytest
-import torch
 
 from pipeline.errors import ParameterError
 from pipeline.models.training_budget import Budget, EarlyStopping, StepPlan, format_duration, plan_text, seeded_subset

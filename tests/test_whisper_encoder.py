@@ -1,7 +1,6 @@
 """The pretrained speech front end (pipeline.audio.whisper_encoder): weights, log-mel, windows, seams."""
 from __future__ import annotations
 
-import shutil
 
 import numpy as np
 import pytest
@@ -85,6 +84,7 @@ def test_bad_audio_gives_finite_features_or_one_clear_error():
         we.whisper_features(x)
 
 
+@pytest.mark.real
 def test_encoder_transcribes_a_grid_clip():
     """The log-mel and the weights are Whisper's own: its decoder reads a GRID sentence from our input."""
     clip = shared("grid_s1", "video", "bgaa6n.mp4")

@@ -122,3 +122,13 @@ def make_vfr_clip(path, times, size=(96, 64), frames=None, audio=None, sample_ra
             for p in a.encode():
                 c.mux(p)
     return path
+
+
+def write_wav(path, samples, rate, channels=1):
+    """A 16-bit PCM WAV of ``samples`` (n,) in [-1, 1] at ``rate`` Hz, repeated over ``channels``; its path."""
+    import wave
+    pcm = np.clip(np.repeat(np.asarray(samples)[:, None], channels, 1) * 32767, -32768, 32767).astype("<i2")
+    with wave.open(str(path), "wb") as w:
+        w.setnchannels(channels); w.setsampwidth(2); w.setframerate(rate)
+        w.writeframes(pcm.tobytes())
+    return path

@@ -1,0 +1,55 @@
+"""One SIMD level for every numeric library, so a stage writes the same bytes on any x86-64 CPU with AVX2.
+
+NumPy, OpenCV, PyTorch (its ATen kernels, MKL and oneDNN), CTranslate2 and OpenBLAS each pick their kernels at
+run time from what the CPU offers. Kernels of different widths add floats in different orders, so a CPU with
+AVX-512 would write outputs that differ in the last bits from an AVX2 CPU's — and training amplifies those bits
+until every downstream DVC hash differs. On a CPU with AVX-512 this caps each library at the AVX2 level
+(x86-64-v3), the level the committed ``dvc.lock`` is made on. It runs when ``pipeline`` is first imported, before
+NumPy is: the libraries read these variables once, when they load. A variable the user has set is left alone.
+
+CPUs below AVX2 are not capped up (they cannot be): there the first stages (synthetic speaker, ingest,
+landmarks) still write the same bytes — they avoid float kernels whose results depend on the SIMD width
+(``pipeline.resample``; ``tests/test_determinism.py``) — and later stages may differ in the last bits.
+"""
+import os
+
+AVX512_SKX = {"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
+
+# each library's own switch, capping it at AVX2 (read when the library loads)
+AVX2_CAP = {
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4",      # NumPy ≥ 2.4: its AVX-512 dispatch group (sorts, math loops)
+    "ATEN_CPU_CAPABILITY": "avx2",             # PyTorch's vectorised ATen kernels
+    "MKL_CBWR": "AVX2",                        # Intel MKL (PyTorch's BLAS, CTranslate2): the AVX2 code branch
+    "ONEDNN_MAX_CPU_ISA": "AVX2",              # oneDNN (PyTorch's convolutions)
+    "CT2_FORCE_CPU_ISA": "AVX2",               # CTranslate2 (the Whisper encoder)
+    "OPENBLAS_CORETYPE": "Haswell",            # OpenBLAS inside NumPy and SciPy wheels: its AVX2 kernels
+}
+
+
+def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> set[str]:
+    """The first processor's feature flags (Linux; an empty set where the file does not exist)."""
+    try:
+        with open(cpuinfo) as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return set()
+
+
+def cap_for(flags: set[str]) -> dict[str, str]:
+    """The environment that caps every library at AVX2 on a CPU with these flags ({} when it has no AVX-512)."""
+    if "avx2" not in flags or "avx512f" not in flags:
+        return {}
+    cap = dict(AVX2_CAP)
+    if AVX512_SKX <= flags:                    # OpenCV dispatches one AVX-512 level; naming one the CPU lacks warns
+        cap["OPENCV_CPU_DISABLE"] = "AVX512-SKX"
+    return cap
+
+
+def pin_avx2(environ=os.environ, flags: set[str] | None = None) -> dict[str, str]:
+    """Set the AVX2 cap in ``environ`` (keeping any value already there); the variables it set."""
+    added = {k: v for k, v in cap_for(cpu_flags() if flags is None else flags).items() if k not in environ}
+    environ.update(added)
+    return added

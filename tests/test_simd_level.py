@@ -1,0 +1,53 @@
+"""pipeline.simd_level: the AVX2 cap is set on AVX-512 CPUs only, never over a user's value, and before NumPy loads."""
+import ast
+import subprocess
+import sys
+
+from pipeline.simd_level import AVX2_CAP, cap_for, cpu_flags, pin_avx2
+from tests.conftest import ROOT
+
+SKX = {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
+
+
+def test_an_avx512_cpu_is_capped_at_avx2_in_every_library():
+    cap = cap_for(SKX)
+    assert cap == dict(AVX2_CAP, OPENCV_CPU_DISABLE="AVX512-SKX")
+    assert {"NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "MKL_CBWR", "ONEDNN_MAX_CPU_ISA"} <= set(cap)
+
+
+def test_cpus_without_avx512_or_without_avx2_are_left_alone():
+    assert cap_for({"sse4_2", "avx", "avx2"}) == {}
+    assert cap_for({"sse4_2", "avx512f"}) == {}                 # (no such CPU, but never cap *up*)
+    assert "OPENCV_CPU_DISABLE" not in cap_for({"avx2", "avx512f"})     # Xeon Phi: OpenCV would warn
+
+
+def test_a_value_the_user_set_is_kept():
+    env = {"ATEN_CPU_CAPABILITY": "default"}
+    added = pin_avx2(env, SKX)
+    assert env["ATEN_CPU_CAPABILITY"] == "default" and "ATEN_CPU_CAPABILITY" not in added
+    assert env["MKL_CBWR"] == "AVX2"
+
+
+def test_cpu_flags_reads_the_first_processor(tmp_path):
+    f = tmp_path / "cpuinfo"
+    f.write_text("processor\t: 0\nflags\t\t: fpu sse2 avx2\n\nprocessor\t: 1\nflags\t\t: fpu\n")
+    assert cpu_flags(str(f)) == {"fpu", "sse2", "avx2"}
+    assert cpu_flags(str(tmp_path / "absent")) == set()
+
+
+def test_a_stage_module_pins_before_numpy_loads():
+    """Entering through ``stages`` (how DVC runs a stage) or ``lipsynth`` imports ``pipeline`` before NumPy."""
+    probe = ("import sys, builtins\n"
+             "seen = []\n"
+             "real = builtins.__import__\n"
+             "def spy(name, *a, **k):\n"
+             "    if name.split('.')[0] in ('numpy', 'pipeline') and name.split('.')[0] not in seen:\n"
+             "        seen.append(name.split('.')[0])\n"
+             "    return real(name, *a, **k)\n"
+             "builtins.__import__ = spy\n"
+             "import {module}\n"
+             "print(seen[:2])\n")
+    for module in ("stages.ingest.ingest", "stages.train.train", "lipsynth.cli"):
+        r = subprocess.run([sys.executable, "-c", probe.format(module=module)], cwd=ROOT, capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        assert ast.literal_eval(r.stdout.strip())[0] == "pipeline", (module, r.stdout)
