@@ -13,17 +13,22 @@ import cv2
 import numpy as np
 
 TABLE = cv2.INTER_TAB_SIZE                 # 32 sub-pixel positions per axis
+SHIFT = TABLE.bit_length() - 1             # log2(TABLE)
+
+
+def _positions_in_table_steps(coords) -> np.ndarray:
+    """Positions (px) → int32 counts of 1/TABLE px, rounded half to even; NaN → far outside, ±inf clipped."""
+    f = np.asarray(coords, np.float64) * TABLE
+    np.nan_to_num(f, copy=False, nan=-1e6)
+    np.clip(f, -32000 * TABLE, 32000 * TABLE, out=f)
+    return np.rint(f).astype(np.int32)
 
 
 def fixed_point_maps(map_x: np.ndarray, map_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Float sampling positions (H, W) (source px) → OpenCV's (H, W, 2) int16 and (H, W) uint16 maps."""
-    fx = np.round(np.asarray(map_x, np.float64) * TABLE)
-    fy = np.round(np.asarray(map_y, np.float64) * TABLE)
-    fx = np.clip(np.nan_to_num(fx, nan=-1e6), -32000 * TABLE, 32000 * TABLE)
-    fy = np.clip(np.nan_to_num(fy, nan=-1e6), -32000 * TABLE, 32000 * TABLE)
-    ix, iy = np.floor_divide(fx, TABLE), np.floor_divide(fy, TABLE)
-    xy = np.stack([ix, iy], axis=-1).astype(np.int16)
-    frac = ((fy - iy * TABLE) * TABLE + (fx - ix * TABLE)).astype(np.uint16)
+    qx, qy = _positions_in_table_steps(map_x), _positions_in_table_steps(map_y)
+    xy = np.stack([qx >> SHIFT, qy >> SHIFT], axis=-1).astype(np.int16)      # arithmetic shift: floor division
+    frac = ((qy & (TABLE - 1)) * TABLE + (qx & (TABLE - 1))).astype(np.uint16)
     return xy, frac
 
 

@@ -652,13 +652,17 @@ def test_synthesize_stage_takes_only_corpus_targets(project, tmp_path):
 
 
 @pytest.mark.slow
-def test_preprocessing_hashes_equal_the_committed_dvc_lock(project):
-    """A fresh run of the default pipeline reproduces the committed dvc.lock for preprocessing: the
-    stores hold nothing machine-specific (paths are project-relative, no timings)."""
+def test_a_fresh_run_reproduces_the_committed_dvc_lock(project):
+    """A fresh run of the default pipeline reproduces every output hash of the committed dvc.lock: the
+    stores and models hold nothing machine-specific (paths are project-relative, no timings). Left out: the
+    report (it carries its date and measured timings by design) and the delay sweep, whose budget this
+    fixture shortens."""
     ours = yaml.safe_load((project / "dvc.lock.first").read_text())["stages"]
     committed = yaml.safe_load((ROOT / "dvc.lock").read_text())["stages"]
-    for stage in ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca"):
-        assert ours[stage]["outs"] == committed[stage]["outs"], stage
+    compared = set(committed) - {"report", "delay_sweep"}
+    assert len(compared) == 14 and set(ours) == set(committed)
+    differ = [stage for stage in sorted(compared) if ours[stage]["outs"] != committed[stage]["outs"]]
+    assert differ == [], f"outputs differ from the committed dvc.lock: {differ}"
 
 
 @pytest.mark.slow

@@ -1,14 +1,14 @@
 """`lipsynth speak` on GRID s1 clips held out of training, scored by the independent yardstick.
 
-A GRID s1 model is trained (session fixture) on every third clip of the corpus, leaving out the
+A GRID s1 model is trained (session fixture) on every sixth clip of the corpus, leaving out the
 clips used here; each held-out clip is then its own audio and target (the paper's Video J
 setting, `--no-retime`) through the command users run, and `../shared/tools/lipsync_yardstick.py`
 (dlib on output vs original, no code shared with the project) measures the mouth. Asserted bounds:
-mouth error / static error ≤ 0.76, opening correlation ≥ 0.80, 80 % of clips within one frame.
+mouth error / static error ≤ 0.77, opening correlation ≥ 0.80, 80 % of clips within one frame.
 They are looser than issue 9's goals (≤ 0.70, ≥ 0.85), which are stated for a model of the full
-corpus: this fixture trains on a third of it to fit CI, and measured 0.740 where the full-corpus
-model measured 0.741 — so the bound is the measurement plus the ±0.02 spread of such runs, not the
-goal. No frame may fall back and no clip may break. A target of another person (GRID s4) must be
+corpus: this fixture trains on a sixth of it (149 clips, 7.5 min) to fit CI and measured 0.752 and
+0.89 (a third of the corpus: 0.740; the full corpus: 0.741) — so the bound is the measurement plus
+the ±0.02 spread of such runs, not the goal. No frame may fall back and no clip may break. A target of another person (GRID s4) must be
 recognised as such.
 """
 import json
@@ -34,7 +34,7 @@ def grid_model(tmp_path_factory):
     from stages.whisper import whisper
     from tests.helpers.stages import make_params, run_preprocessing
     clips = [c for c in sorted(shared("grid_s1", "video").glob("*.mp4"))
-             if c.stem not in HELD_OUT and c.stem != "pbio7a"][::3]
+             if c.stem not in HELD_OUT and c.stem != "pbio7a"][::6]
     out = tmp_path_factory.mktemp("grid_model")
     p = make_params(out, [str(c) for c in clips], data=dict(on_bad_input="skip", val_fraction=0.1),
                     pca=dict(out=str(out / "pca.zarr")),
@@ -68,7 +68,7 @@ def test_speak_on_held_out_clips_meets_the_goals(grid_model, tmp_path):
     res, _ = yardstick(grid_model, clips, tmp_path)
     summary = res["summary"] if "summary" in res else res
     assert summary["ok"] == len(clips), summary                   # every clip produced and scored
-    assert summary["err_ratio"] <= 0.76, summary                  # measured 0.740 (full-corpus model: 0.741)
+    assert summary["err_ratio"] <= 0.77, summary                  # measured 0.752 (full-corpus model: 0.741)
     assert summary["corr"] >= 0.80, summary
     assert summary["within_1_frame"] >= 0.8, summary
     assert summary["sharp"] <= 2.0, summary                       # no scribbled, over-sharp mouths
