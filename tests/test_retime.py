@@ -7,7 +7,8 @@ import pytest
 
 from pipeline.errors import ParameterError
 from pipeline.video.repeats import interpolate_repeats
-from stages.synthesize.retime import blink_flags, extend_by_ping_pong, eye_area, motion_speed, retime, speech_flags
+from stages.synthesize.retime import blink_flags, extend_by_ping_pong, eye_area, motion_speed, retime
+from stages.synthesize.speech_flags import speech_flags
 
 
 # ---------------------------------------------------------------- retime

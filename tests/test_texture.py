@@ -6,6 +6,7 @@ import pytest
 import skimage.data
 
 from pipeline.face.dlib_face import LIP_POINTS
+from stages.synthesize import teeth as th
 from stages.synthesize import texture as tx
 
 LIP18 = np.array(LIP_POINTS) - 48          # rows of the 18 shape points inside the 20 lip points
@@ -138,11 +139,11 @@ def test_weighted_median_degenerate_cases():
 def test_overlay_and_high_pass_neutral_values():
     rng = np.random.default_rng(4)
     img = rng.random((20, 20, 3)).astype(np.float32)
-    np.testing.assert_allclose(tx.overlay(img, np.full_like(img, 0.5)), img, atol=1e-6)
-    assert np.all(tx.overlay(img, np.full_like(img, 0.7)) >= img)       # H > 0.5 brightens
-    assert np.all(tx.overlay(img, np.full_like(img, 0.3)) <= img)
-    np.testing.assert_allclose(tx.high_pass(np.full((20, 20, 3), 0.3, np.float32), 2.0, 5.0), 0.5, atol=1e-6)
-    h = tx.high_pass(img, 1.0, 100.0)
+    np.testing.assert_allclose(th.overlay(img, np.full_like(img, 0.5)), img, atol=1e-6)
+    assert np.all(th.overlay(img, np.full_like(img, 0.7)) >= img)       # H > 0.5 brightens
+    assert np.all(th.overlay(img, np.full_like(img, 0.3)) <= img)
+    np.testing.assert_allclose(th.high_pass(np.full((20, 20, 3), 0.3, np.float32), 2.0, 5.0), 0.5, atol=1e-6)
+    h = th.high_pass(img, 1.0, 100.0)
     assert h.min() >= 0 and h.max() <= 1 and h.dtype == np.float32
 
 
@@ -150,7 +151,7 @@ def test_teeth_mask_finds_a_white_band_inside_the_inner_lip_only():
     img, lip = mouth_face(upper=False, lower=False)
     img[66:71, :] = TOOTH                     # white band across the whole face, through the mouth
     img[72:74, 50:80] = (250, 100, 100)       # bright but saturated (tongue/lip): not teeth
-    mask = tx.teeth_mask(img, lip)
+    mask = th.teeth_mask(img, lip)
     inside = np.zeros(mask.shape, np.uint8)
     cv2.fillPoly(inside, [np.round(lip[12:] * 16).astype(np.int32)], 1, shift=4)
     band = np.zeros(mask.shape, bool)
@@ -160,7 +161,7 @@ def test_teeth_mask_finds_a_white_band_inside_the_inner_lip_only():
     assert not mask[(inside > 0) & ~band].any()  # not the dark cavity, not the bright red
     full = np.zeros((68, 2), np.float32)
     full[48:] = lip
-    np.testing.assert_array_equal(tx.teeth_mask(img, full), mask)
+    np.testing.assert_array_equal(th.teeth_mask(img, full), mask)
 
 
 # ----------------------------------------------------------------------------- enhancement
@@ -168,8 +169,8 @@ def test_teeth_mask_finds_a_white_band_inside_the_inner_lip_only():
 def test_enhance_teeth_adds_detail_in_the_teeth_and_nothing_far_away():
     sharp, lip = mouth_face()
     median = cv2.GaussianBlur(sharp, (0, 0), 1.5)
-    out = tx.enhance_teeth(median, lip, sharp, lip, sharp, lip, (0.0, 0.0))
-    teeth = tx.teeth_mask(median, lip)
+    out = th.enhance_teeth(median, lip, sharp, lip, sharp, lip, (0.0, 0.0))
+    teeth = th.teeth_mask(median, lip)
     assert teeth.sum() > 100
     assert lap_var(out, teeth) > 2 * lap_var(median, teeth)
     err = lambda im: np.abs(im.astype(float) - sharp)[teeth].mean()
@@ -178,7 +179,7 @@ def test_enhance_teeth_adds_detail_in_the_teeth_and_nothing_far_away():
     np.testing.assert_array_equal(out[105:], median[105:])
     np.testing.assert_array_equal(out[:, :15], median[:, :15])
     closed, lip_c = mouth_face(top=0.5, bottom=0.5, upper=False, lower=False)   # no teeth: only unsharp
-    out_c = tx.enhance_teeth(closed, lip_c, sharp, lip, sharp, lip, unsharp_amount=0.0)
+    out_c = th.enhance_teeth(closed, lip_c, sharp, lip, sharp, lip, unsharp_amount=0.0)
     np.testing.assert_array_equal(out_c, closed)
 
 
@@ -186,9 +187,9 @@ def test_lower_proxy_follows_the_jaw():
     proxy, proxy_lip = mouth_face(top=4, bottom=4, du=2.0)
     truth, lip = mouth_face(top=4, bottom=7)          # jaw 3 px lower, mouth 2 px to the left
     median = cv2.GaussianBlur(truth, (0, 0), 1.5)
-    np.testing.assert_allclose(tx.jaw_shift(lip, proxy_lip), (-2.0, 3.0), atol=1e-5)
-    lower = tx.teeth_mask(median, lip) & (tx.upper_weight(lip, truth.shape) < 0.5)
-    err = lambda shift: np.abs(tx.enhance_teeth(median, lip, truth, lip, proxy, proxy_lip, shift,
+    np.testing.assert_allclose(th.jaw_shift(lip, proxy_lip), (-2.0, 3.0), atol=1e-5)
+    lower = th.teeth_mask(median, lip) & (th.upper_weight(lip, truth.shape) < 0.5)
+    err = lambda shift: np.abs(th.enhance_teeth(median, lip, truth, lip, proxy, proxy_lip, shift,
                                                 unsharp_amount=0.0).astype(float) - truth)[lower].mean()
     assert err(None) == err((-2.0, 3.0))
     assert err(None) < 0.85 * err((0.0, 0.0)) and err(None) < 0.85 * err((2.0, -3.0))
@@ -206,14 +207,14 @@ def test_pick_teeth_proxies_prefers_open_sharp_visible_teeth():
     lm[:, 48:] = [f[1] for f in frames]
     ok = np.ones(len(frames), bool)
     ok[5] = False
-    assert tx.pick_teeth_proxies(imgs, lm, ok) == (2, 2)
+    assert th.pick_teeth_proxies(imgs, lm, ok) == (2, 2)
     calls = []
     getter = lambda ix: calls.append(ix) or imgs[ix]
-    assert tx.pick_teeth_proxies(getter, lm, ok, top_k=4) == (2, 2) and len(calls[0]) == 4
+    assert th.pick_teeth_proxies(getter, lm, ok, top_k=4) == (2, 2) and len(calls[0]) == 4
     yaw = np.array([0, 0, 0.5, 0, 0, 0])
-    assert tx.pick_teeth_proxies(imgs, lm, np.ones(6, bool), yaw=yaw) == (5, 5)
-    assert tx.pick_teeth_proxies(imgs, lm, ok, upper=1) == (1, 2)
-    assert tx.pick_teeth_proxies(None, lm, ok, upper=1, lower=4) == (1, 4)
+    assert th.pick_teeth_proxies(imgs, lm, np.ones(6, bool), yaw=yaw) == (5, 5)
+    assert th.pick_teeth_proxies(imgs, lm, ok, upper=1) == (1, 2)
+    assert th.pick_teeth_proxies(None, lm, ok, upper=1, lower=4) == (1, 4)
 
 
 # ----------------------------------------------------------------------------- a real photo
@@ -233,11 +234,11 @@ def astronaut_mouth():
 
 def test_real_photo_teeth_mask_and_enhancement(astronaut_mouth):
     sharp, lip = astronaut_mouth
-    teeth = tx.teeth_mask(sharp, lip)
-    assert teeth.sum() > 60 and (teeth & (tx.upper_weight(lip, teeth.shape) > 0.5)).sum() > 30
+    teeth = th.teeth_mask(sharp, lip)
+    assert teeth.sum() > 60 and (teeth & (th.upper_weight(lip, teeth.shape) > 0.5)).sum() > 30
     median = cv2.GaussianBlur(sharp, (0, 0), 1.2)
-    out = tx.enhance_teeth(median, lip, sharp, lip, sharp, lip, (0.0, 0.0))
-    region = tx.teeth_mask(median, lip)
+    out = th.enhance_teeth(median, lip, sharp, lip, sharp, lip, (0.0, 0.0))
+    region = th.teeth_mask(median, lip)
     assert lap_var(out, region) > 1.5 * lap_var(median, region)
     err = lambda im: np.abs(im.astype(float) - sharp)[region].mean()
     assert err(out) < err(median)
@@ -253,8 +254,8 @@ def test_synthesize_texture_end_to_end_on_shifted_real_frames(astronaut_mouth):
     lm = np.zeros((M, 68, 2), np.float32)
     lm[:, 48:] = lip + offs[:, None].astype(np.float32)
     shapes = lm[:, 48:][:, LIP18]
-    up, lo = tx.pick_teeth_proxies(frames, lm, np.ones(M, bool), top_k=16)
-    proxies = tx.proxies_from_frames(lambda ix: frames[ix], lm, up, lo)
+    up, lo = th.pick_teeth_proxies(frames, lm, np.ones(M, bool), top_k=16)
+    proxies = th.proxies_from_frames(lambda ix: frames[ix], lm, up, lo)
     got = []
     rgb, info = tx.synthesize_texture(lip[LIP18], shapes, lambda ix: got.append(ix) or frames[ix], lm,
                                       n=n, alpha=0.9, proxies=proxies)
@@ -265,13 +266,13 @@ def test_synthesize_texture_end_to_end_on_shifted_real_frames(astronaut_mouth):
     np.testing.assert_allclose(info["lip_points"], info["landmarks"][48:68])
     assert np.abs(info["lip_points"] - lip).max() < 1.0      # the weighted jaw sits on the target
     assert rgb.shape == (128, 128, 3) and rgb.dtype == np.uint8
-    mouth = tx._polygon(lip[:12], rgb.shape).astype(bool)
+    mouth = th._polygon(lip[:12], rgb.shape).astype(bool)
     assert np.abs(rgb.astype(float) - base)[mouth].mean() < 20
     i420 = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2YUV_I420) for f in frames])      # the store's format
     rgb_yuv, info_yuv = tx.synthesize_texture(lip[LIP18], shapes, lambda ix: i420[ix], lm, n=n, proxies=proxies)
     np.testing.assert_array_equal(info_yuv["indices"], info["indices"])
-    assert tx.pick_teeth_proxies(lambda ix: i420[ix], lm, np.ones(M, bool), top_k=16) == (up, lo)
-    proxies_yuv = tx.proxies_from_frames(lambda ix: i420[ix], lm, up, lo)
+    assert th.pick_teeth_proxies(lambda ix: i420[ix], lm, np.ones(M, bool), top_k=16) == (up, lo)
+    proxies_yuv = th.proxies_from_frames(lambda ix: i420[ix], lm, up, lo)
     assert np.abs(proxies_yuv["upper"] - proxies["upper"]).mean() < 0.01
     assert rgb_yuv.shape == rgb.shape and np.abs(rgb_yuv.astype(float) - rgb)[mouth].mean() < 6
 
@@ -295,10 +296,10 @@ def test_teeth_detail_on_real_frontal_textures(grid_preprocessed):
     ok = np.flatnonzero(g["pose_valid"][:k] & np.isfinite(lm).all((1, 2)))
     rgb = np.stack([i420_to_rgb(t) for t in g["texture"][:k][ok]])
     lm = lm[ok]
-    up, lo = tx.pick_teeth_proxies(rgb, lm, np.ones(len(ok), bool), top_k=32)
-    proxies = tx.proxies_from_frames(lambda ix: rgb[ix], lm, up, lo)
+    up, lo = th.pick_teeth_proxies(rgb, lm, np.ones(len(ok), bool), top_k=32)
+    proxies = th.proxies_from_frames(lambda ix: rgb[ix], lm, up, lo)
     j = int(np.argmax(lm[:, 66, 1] - lm[:, 62, 1]))
-    assert tx.teeth_mask(rgb[j], lm[j, LIP_POINTS]).sum() > 20, "the widest-open real frame shows teeth"
+    assert th.teeth_mask(rgb[j], lm[j, LIP_POINTS]).sum() > 20, "the widest-open real frame shows teeth"
     others = np.flatnonzero(np.abs(np.arange(len(ok)) - j) > 50)          # not j's own neighbours
     pinkish = dict(s_max=0.6)
     out, info = tx.synthesize_texture(lm[j, LIP_POINTS], lm[others][:, LIP_POINTS],
@@ -306,8 +307,8 @@ def test_teeth_detail_on_real_frontal_textures(grid_preprocessed):
     plain, _ = tx.synthesize_texture(lm[j, LIP_POINTS], lm[others][:, LIP_POINTS],
                                      lambda ix: rgb[others[ix]], lm[others], params=pinkish)
     assert abs(info["share"] - 0.9) < 1e-3
-    teeth = tx.teeth_mask(plain, info["lip_points"], s_max=0.6)
+    teeth = th.teeth_mask(plain, info["lip_points"], s_max=0.6)
     assert teeth.sum() > 20, "the median of other frames shows teeth: the test's precondition failed"
-    assert np.abs(out.astype(int) - plain)[~tx._polygon(tx._lip20(info["lip_points"])[tx.OUTER],
+    assert np.abs(out.astype(int) - plain)[~th._polygon(th._lip20(info["lip_points"])[th.OUTER],
                                                          plain.shape[:2], grow_px=12).astype(bool)].max() == 0
     assert lap_var(out, teeth) > 1.5 * lap_var(plain, teeth)

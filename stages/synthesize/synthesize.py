@@ -46,6 +46,8 @@ from pipeline.io.runner import stage_main, write_timing
 from pipeline.io.threads import opencv_threads
 from pipeline.io.store import atomic_output, create_group, open_group, take
 from stages.synthesize import retime as rt
+from stages.synthesize.speech_flags import speech_flags
+from stages.synthesize import teeth as th
 from stages.synthesize import texture as tx
 
 log = logging.getLogger("lipsynth.synthesize")
@@ -141,7 +143,7 @@ def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray,
         mapping = order[:n_out] if len(order) >= n_out else np.resize(order, n_out)
         return mapping, np.zeros(n_out, bool)
     V = rt.motion_speed(target_landmarks) + p.alpha_b * rt.blink_flags(target_landmarks, p.blink_threshold)
-    A = rt.speech_flags(samples, 16000, fps, n_out, p.speech_threshold_db)
+    A = speech_flags(samples, 16000, fps, n_out, p.speech_threshold_db)
     order = np.arange(M)
     if n_out > 2 * M:
         order = rt.extend_by_ping_pong(M, n_out)
@@ -229,10 +231,10 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
         return None if j is None else int(hit[0])
 
     yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
-    upper, lower = tx.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
+    upper, lower = th.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
                                          s_max=p.teeth_s_max, v_min=p.teeth_v_min, upper=to_pool(up), lower=to_pool(lo))
     px = pool_tex.shape[2] / REFERENCE_TEXTURE        # the px params are given at T = 128: same mm at any texture size
-    proxies = tx.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower,
+    proxies = th.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower,
                                      sigmas=tuple(px * s for s in p.teeth_sigmas), strength=p.teeth_strength,
                                      feather_px=px * p.teeth_feather_px)
     detail = dict(s_max=p.teeth_s_max, v_min=p.teeth_v_min, feather_px=px * p.teeth_feather_px,
