@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.models.mouth_prediction import load_audio, predict_mouth
 from pipeline.io.runner import run_main, setup_logging
+from pipeline.io.store import atomic_output
 
 log = logging.getLogger("lipsynth.predict")
 
@@ -42,9 +42,8 @@ def main(argv=None) -> int:
         result = predict_mouth(load_audio(a.audio), a.model, a.fps, a.chunk_seconds, a.device, source=a.audio,
                                emotion=a.emotion)
         out = Path(a.out or Path(a.audio).with_suffix(".mouth.npz"))
-        tmp = out.with_name(out.name + ".tmp.npz")
-        np.savez(tmp, **{k: v for k, v in result.items() if k != "coeffs_100hz"})
-        os.replace(tmp, out)
+        with atomic_output(out, suffix=".npz") as tmp:
+            np.savez(tmp, **{k: v for k, v in result.items() if k != "coeffs_100hz"})
         log.info("%d frames at %.3f fps → %s", len(result["coeffs"]), a.fps, out)
     return run_main(go)
 

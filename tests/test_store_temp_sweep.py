@@ -80,3 +80,26 @@ def test_atomic_output_sweeps_a_sigkilled_writer_before_writing(tmp_path):
         (tmp / "shard").write_bytes(b"y")
     assert sorted(p.name for p in (tmp_path / "store").iterdir()) == ["landmarks.zarr"]
     assert (out / "shard").read_bytes() == b"y"
+
+
+def test_a_file_output_keeps_its_extension_and_appears_only_on_success(tmp_path):
+    out = tmp_path / "result.mp4"
+    out.write_bytes(b"old video")
+    try:
+        with atomic_output(out, suffix=".mp4") as tmp:
+            assert tmp.name.endswith(".mp4") and tmp.name.startswith(".result.mp4.tmp-")
+            tmp.write_bytes(b"half a video")
+            raise RuntimeError("encoder failed")
+    except RuntimeError:
+        pass
+    assert out.read_bytes() == b"old video" and sorted(p.name for p in tmp_path.iterdir()) == ["result.mp4"]
+    with atomic_output(out, suffix=".mp4") as tmp:
+        tmp.write_bytes(b"new video")
+    assert out.read_bytes() == b"new video" and sorted(p.name for p in tmp_path.iterdir()) == ["result.mp4"]
+
+
+def test_a_killed_file_writer_is_swept(tmp_path):
+    out = tmp_path / "result.mp4"
+    stale = tmp_path / f".result.mp4.tmp-{dead_pid()}.mp4"
+    stale.write_bytes(b"half a video")
+    assert sweep_stale_temps(out) == [stale] and not stale.exists()

@@ -47,9 +47,9 @@ def pid_alive(pid: int) -> bool:
 
 
 def sweep_stale_temps(out: str | os.PathLike) -> list[Path]:
-    """Remove the leftovers of killed writers of ``out``: ``.<name>.tmp-<pid>`` (a store being
-    written) and ``.<name>.old-<pid>`` (the previous store being replaced) beside it whose pid is
-    not a live process. Logs one line per folder removed and returns them.
+    """Remove the leftovers of killed writers of ``out``: ``.<name>.tmp-<pid>[.ext]`` (a store or file
+    being written) and ``.<name>.old-<pid>[.ext]`` (the previous one being replaced) beside it whose pid
+    is not a live process. Logs one line per folder removed and returns them.
 
     Folders of live processes (another run writing the same output right now), of this process,
     and every other name are left alone. The pid is checked on this machine: two hosts writing
@@ -59,7 +59,7 @@ def sweep_stale_temps(out: str | os.PathLike) -> list[Path]:
     out = Path(out).absolute()
     if not out.parent.is_dir():
         return []
-    pattern = re.compile(rf"^\.{re.escape(out.name)}\.(tmp|old)-(\d+)$")
+    pattern = re.compile(rf"^\.{re.escape(out.name)}\.(tmp|old)-(\d+)(\.\w+)?$")
     swept = []
     for path in sorted(out.parent.iterdir()):
         m = pattern.match(path.name)
@@ -75,29 +75,39 @@ def sweep_stale_temps(out: str | os.PathLike) -> list[Path]:
 
 
 @contextlib.contextmanager
-def atomic_output(out: str | os.PathLike):
+def atomic_output(out: str | os.PathLike, suffix: str = ""):
     """Yield a temporary path next to ``out``; on success replace ``out`` with it.
 
-    On any exception the temporary directory is removed and ``out`` is left as it was. Stale
-    temporary folders of killed earlier runs are swept first (``sweep_stale_temps``).
+    The temporary path is ``.<name>.tmp-<pid><suffix>`` — a folder or a file, whichever the caller
+    writes (``suffix`` keeps a file's extension, e.g. ``.mp4`` for a writer that picks the format from
+    it). On any exception it is removed and ``out`` is left as it was. Stale temporaries of killed
+    earlier runs are swept first (``sweep_stale_temps``).
     """
     out = Path(out).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale_temps(out)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    shutil.rmtree(tmp, ignore_errors=True)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}{suffix}")
+    _remove(tmp)
     try:
         yield tmp
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        _remove(tmp)
         raise
     if out.exists():
-        old = out.with_name(f".{out.name}.old-{os.getpid()}")
+        old = out.with_name(f".{out.name}.old-{os.getpid()}{suffix}")
         os.replace(out, old)
         os.replace(tmp, out)
-        shutil.rmtree(old, ignore_errors=True)
+        _remove(old)
     else:
         os.replace(tmp, out)
+
+
+def _remove(path: Path) -> None:
+    """Remove a folder tree or a file, if present."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
 
 
 def project_path(path: str | os.PathLike) -> str:

@@ -14,8 +14,8 @@ Run: ``python -m stages.composite.composite``.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
-import os
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -32,7 +32,7 @@ from pipeline.video.repeats import halfway_frame, repeat_partners
 from pipeline.params import Composite, Params
 from pipeline.io.runner import stage_main, write_timing
 from pipeline.io.threads import opencv_threads
-from pipeline.io.store import i420_to_rgb, open_group
+from pipeline.io.store import atomic_output, i420_to_rgb, open_group
 from stages.composite.layers import (colour_match, jaw_band, jaw_correction, layer_masks, pyramid_blend, skin_region,
                                      synth_alpha)
 from stages.composite import self_check
@@ -174,6 +174,54 @@ def diagnostic(target: np.ndarray, result: np.ndarray, texture: np.ndarray, lip_
     return np.hstack([target, result, panel])
 
 
+def composite_one(frame: np.ndarray, following: np.ndarray | None, texture: np.ndarray, j: int, inpainted: np.ndarray,
+                  tgt: Target, p: Composite, candidate: np.ndarray, reference: float | None):
+    """One output frame (runs on a worker thread): the target frame (half-way to ``following`` for a repeated
+    frame), the texture composited into it, and its self-check. Returns (frame, result, phase seconds, check)."""
+    t: dict = {}
+    if following is not None:
+        t0 = time.perf_counter()
+        frame = halfway_frame(frame, following)
+        t["retime_flow"] = time.perf_counter() - t0
+    result = composite_frame(frame, texture, j, tgt, p, t, inpainted)
+    check = None
+    if p.self_check and tgt.pose_ok[j]:
+        t0 = time.perf_counter()
+        check = self_check.check_frame(result, tgt.expected_landmarks(j, candidate), reference)
+        t["check"] = time.perf_counter() - t0      # the phase; "self_check" is the summary
+    return frame, result, t, check
+
+
+class OrderedOutput:
+    """Output frames written in order, each once the self-checks of the ``fade`` frames after it are known; around a
+    frame that failed its check the result cross-fades to the target frame (``self_check.fallback_weights``)."""
+
+    def __init__(self, writer, diagnostic_writer, lips: np.ndarray, fade: int, timing: dict, bar):
+        self.writer, self.diagnostic_writer, self.lips, self.fade = writer, diagnostic_writer, lips, fade
+        self.ok = np.ones(len(lips), bool)       # frames not checked (yet) count as passing
+        self.ready: deque = deque()
+        self.timing, self.bar = timing, bar
+
+    def add(self, i: int, frame: np.ndarray, result: np.ndarray, texture: np.ndarray, ok: bool) -> None:
+        self.ok[i] = ok
+        self.ready.append((i, frame, result, texture))
+        self.emit(keep=self.fade)
+
+    def emit(self, keep: int = 0) -> None:
+        while len(self.ready) > keep:
+            i, frame, result, texture = self.ready.popleft()
+            lo = max(i - self.fade, 0)
+            wgt = self_check.fallback_weights(self.ok[lo:i + self.fade + 1], self.fade)[i - lo]
+            if wgt < 1:
+                result = np.clip(wgt * result.astype(np.float32) + (1 - wgt) * frame + 0.5, 0, 255).astype(np.uint8)
+            t0 = time.perf_counter()
+            self.writer.write(result)
+            if self.diagnostic_writer is not None:
+                self.diagnostic_writer.write(diagnostic(frame, result, texture, self.lips[i]))
+            self.timing["encode"] = self.timing.get("encode", 0.0) + time.perf_counter() - t0
+            self.bar.update()
+
+
 def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, video_path: str, audio_path: str) -> dict:
     """Composite the textures of ``synth_path`` into the target video and mux ``audio_path``.
 
@@ -183,7 +231,8 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
     video_path : the target's source video (full frames).
     audio_path : the new speech (any file PyAV reads).
 
-    Returns the thread time per output frame of each phase (ms).
+    Returns the thread time per output frame of each phase (ms). The video (and the diagnostic video) appear
+    only when every frame is written.
     """
     p = params.composite
     synth = open_group(synth_path)
@@ -196,120 +245,76 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
     audio, _ = media.read_audio(audio_path, sr)
     audio = audio[:int(round(len(mapping) / tgt.video["fps"] * sr))]
     out = Path(out_video)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}.mp4")
     diag = out.with_name(out.stem + ".diagnostic.mp4") if p.diagnostic else None
-    diag_tmp = diag.with_name(f".{diag.name}.tmp-{os.getpid()}.mp4") if diag else None
+    fps = tgt.video["fps"]
     timing: dict = {}
     checks: list[dict] = []
     reference = tgt.mouth_energy_reference() if p.self_check else None
+    fade = max(int(p.check_fade_frames), 0) if p.self_check else 0
     t_start = time.perf_counter()
+    with contextlib.ExitStack() as stack:           # closed in reverse: writers finish before the renames
+        tmp = stack.enter_context(atomic_output(out, suffix=".mp4"))
+        diag_tmp = stack.enter_context(atomic_output(diag, suffix=".mp4")) if diag else None
+        writer = stack.enter_context(media.VideoWriter(tmp, fps, p.crf, p.preset, audio, sr))
+        diag_writer = stack.enter_context(media.VideoWriter(diag_tmp, fps, p.crf, p.preset, audio, sr)) if diag else None
+        pool = stack.enter_context(ThreadPoolExecutor(p.threads))
+        stack.enter_context(opencv_threads(1))
+        bar = stack.enter_context(tqdm(total=len(mapping), desc="composite", unit="frame", dynamic_ncols=True))
+        output = OrderedOutput(writer, diag_writer, lips, fade, timing, bar)
+        pending: deque = deque()                    # submitted to the pool, in output order
 
-    def work(i, frame, following, texture, j, inpainted):
-        t: dict = {}
-        if following is not None:
+        def finish_oldest() -> None:
+            i, texture, fut = pending.popleft()
+            frame, result, t, check = fut.result()
+            for k, v in t.items():
+                timing[k] = timing.get(k, 0.0) + v
+            ok = True
+            if check is not None:
+                checks.append(check)
+                ok = self_check.passes(check, p.check_max_error, p.check_max_sharpness, p.check_max_face_error)
+                if not ok:
+                    log.debug("self-check: output frame %d fails (mouth error %.3f × IOD, nose and chin %.3f × IOD, "
+                              "sharpness × %.1f)", i, check["error"], check["face_error"], check["sharpness"])
+            output.add(i, frame, result, texture, ok)
+
+        for i in range(len(mapping)):
+            j = int(mapping[i])
+            if i % 256 == 0:
+                textures = np.asarray(synth["texture"][i:i + 256])
+                inpainted = np.asarray(synth["inpainted"][i:i + 256])
             t0 = time.perf_counter()
-            frame = halfway_frame(frame, following)
-            t["retime_flow"] = time.perf_counter() - t0
-        result = composite_frame(frame, texture, j, tgt, p, t, inpainted)
-        check = None
-        if p.self_check and tgt.pose_ok[j]:
-            t0 = time.perf_counter()
-            check = self_check.check_frame(result, tgt.expected_landmarks(j, cand[i]), reference)
-            t["check"] = time.perf_counter() - t0      # the phase; "self_check" is the summary
-        return frame, result, t, check
-
-    try:
-        with media.VideoWriter(tmp, tgt.video["fps"], p.crf, p.preset, audio, sr) as w, \
-                (media.VideoWriter(diag_tmp, tgt.video["fps"], p.crf, p.preset, audio, sr)
-                 if diag else _Null()) as dw, ThreadPoolExecutor(p.threads) as pool, opencv_threads(1):
-            pending: deque = deque()            # submitted, not finished
-            ready: deque = deque()              # finished, waiting for the self-check of the frames after them
-            ok = np.ones(len(mapping), bool)
-            fade = max(int(p.check_fade_frames), 0) if p.self_check else 0
-
-            def emit(keep: int) -> None:
-                while len(ready) > keep:
-                    i, frame, result, texture = ready.popleft()
-                    lo = max(i - fade, 0)
-                    wgt = self_check.fallback_weights(ok[lo:i + fade + 1], fade)[i - lo]
-                    if wgt < 1:            # cross-fade to the target frame around a failed frame
-                        result = np.clip(wgt * result.astype(np.float32) + (1 - wgt) * frame + 0.5, 0, 255
-                                         ).astype(np.uint8)
-                    t0 = time.perf_counter()
-                    w.write(result)
-                    if diag:
-                        dw.write(diagnostic(frame, result, texture, lips[i]))
-                    timing["encode"] = timing.get("encode", 0.0) + time.perf_counter() - t0
-                    bar.update()
-
-            def flush(keep: int) -> None:
-                while len(pending) > keep:
-                    i, texture, fut = pending.popleft()
-                    frame, result, t, check = fut.result()
-                    for k, v in t.items():
-                        timing[k] = timing.get(k, 0.0) + v
-                    if check is not None:
-                        checks.append(check)
-                        ok[i] = self_check.passes(check, p.check_max_error, p.check_max_sharpness,
-                                                  p.check_max_face_error)
-                        if not ok[i]:
-                            log.debug("self-check: output frame %d fails (mouth error %.3f × IOD, nose and chin "
-                                      "%.3f × IOD, sharpness × %.1f)", i, check["error"], check["face_error"],
-                                      check["sharpness"])
-                    ready.append((i, frame, result, texture))
-                    emit(fade)
-
-            with tqdm(total=len(mapping), desc="composite", unit="frame", dynamic_ncols=True) as bar:
-                for i in range(len(mapping)):
-                    j = int(mapping[i])
-                    if i % 256 == 0:
-                        textures = np.asarray(synth["texture"][i:i + 256])
-                        inpainted = np.asarray(synth["inpainted"][i:i + 256])
-                    t0 = time.perf_counter()
-                    frame = tgt.reader.get(j)
-                    following = tgt.reader.get(int(partner[i])) if partner[i] >= 0 else None
-                    timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
-                    texture = textures[i % 256]
-                    pending.append((i, texture, pool.submit(work, i, frame, following, texture, j,
-                                                            inpainted[i % 256])))
-                    flush(2 * p.threads)
-                flush(0)
-                emit(0)
-        os.replace(tmp, out)
-        if diag:
-            os.replace(diag_tmp, diag)
-    finally:
-        for t in (tmp, diag_tmp):
-            if t is not None:
-                Path(t).unlink(missing_ok=True)
+            frame = tgt.reader.get(j)
+            following = tgt.reader.get(int(partner[i])) if partner[i] >= 0 else None
+            timing["decode"] = timing.get("decode", 0.0) + time.perf_counter() - t0
+            texture = textures[i % 256]
+            pending.append((i, texture, pool.submit(composite_one, frame, following, texture, j, inpainted[i % 256],
+                                                    tgt, p, cand[i], reference)))
+            while len(pending) > 2 * p.threads:
+                finish_oldest()
+        while pending:
+            finish_oldest()
+        output.emit(keep=0)
     total = time.perf_counter() - t_start
-    log.info("wrote %s: %d frames at %.3f fps in %.1f s (%.1f frames/s)", out, len(mapping), tgt.video["fps"],
-             total, len(mapping) / total)
+    log.info("wrote %s: %d frames at %.3f fps in %.1f s (%.1f frames/s)", out, len(mapping), fps, total,
+             len(mapping) / total)
     ms = {k: v / len(mapping) * 1000 for k, v in timing.items()}       # thread time per frame
     if p.self_check:
-        summary = dict(checked=len(checks), fallen_back=int((~ok).sum()),
-                       median_error=float(np.median([c["error"] for c in checks])) if checks else None,
-                       median_face_error=float(np.median([c["face_error"] for c in checks])) if checks else None,
-                       median_sharpness=float(np.median([c["sharpness"] for c in checks])) if checks else None)
-        log.info("self-check: %d frames checked, %d fell back to the target frame (mouth error > %.2f × IOD, "
-                 "nose and chin > %.2f × IOD or sharpness > %.1f×; median errors %.3f and %.3f, median sharpness "
-                 "%.2f×)", summary["checked"], summary["fallen_back"], p.check_max_error, p.check_max_face_error,
-                 p.check_max_sharpness, summary["median_error"] or float("nan"),
-                 summary["median_face_error"] or float("nan"), summary["median_sharpness"] or float("nan"))
-        ms["self_check"] = summary
+        ms["self_check"] = self_check_summary(checks, output.ok, p)
     return ms
 
 
-class _Null:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-    def write(self, _):
-        pass
+def self_check_summary(checks: list[dict], ok: np.ndarray, p: Composite) -> dict:
+    """Counts and medians of the self-check over the output, logged in one line."""
+    def median(key):
+        return float(np.median([c[key] for c in checks])) if checks else None
+    summary = dict(checked=len(checks), fallen_back=int((~ok).sum()), median_error=median("error"),
+                   median_face_error=median("face_error"), median_sharpness=median("sharpness"))
+    log.info("self-check: %d frames checked, %d fell back to the target frame (mouth error > %.2f × IOD, "
+             "nose and chin > %.2f × IOD or sharpness > %.1f×; median errors %.3f and %.3f, median sharpness "
+             "%.2f×)", summary["checked"], summary["fallen_back"], p.check_max_error, p.check_max_face_error,
+             p.check_max_sharpness, summary["median_error"] or float("nan"),
+             summary["median_face_error"] or float("nan"), summary["median_sharpness"] or float("nan"))
+    return summary
 
 
 def run_stage(params: Params) -> dict:

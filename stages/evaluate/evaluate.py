@@ -185,11 +185,8 @@ def run(params: Params) -> dict:
                        "setting": "Video J: each clip re-synthesized from its own audio, no re-timing",
                        "exclude_target_from_pool": e.exclude_target_from_pool, "clips": len(results),
                        "out": e.out, "median": summarise(results), "per_clip": results})
-    metrics = Path(e.metrics)
-    metrics.parent.mkdir(parents=True, exist_ok=True)
-    part = metrics.with_name(f".{metrics.name}.tmp-{os.getpid()}")
-    part.write_text(json.dumps(summary, indent=2) + "\n")
-    os.replace(part, metrics)
+    with atomic_output(e.metrics, suffix=".json") as part:
+        part.write_text(json.dumps(summary, indent=2) + "\n")
     flat = {f"{c}_{k}": v for c, t in timing.items() for k, v in t.items()}
     write_timing("evaluate", flat)     # seconds per clip (untracked: timings differ from run to run)
     return summary

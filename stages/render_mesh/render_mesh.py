@@ -16,7 +16,6 @@ Run: ``python -m stages.render_mesh.render_mesh``.
 from __future__ import annotations
 
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -32,6 +31,7 @@ from pipeline.face.dlib_face import LIP_POINTS
 from pipeline.face.head_mesh import HeadMesh, head_mesh, smooth_surface
 from pipeline.face.head_texture import HeadWindow
 from pipeline.io import media
+from pipeline.io.store import atomic_output
 from pipeline.models.model_folder import ModelError, load_speaker
 from pipeline.models.mouth_prediction import check_emotion, load_audio, predict_mouth
 from pipeline.io.runner import stage_main, write_timing
@@ -120,15 +120,14 @@ def render_mesh(audio: str, model: str, out: str, fps: float = 25.0, size: int =
     mesh, motion = head.mesh, head.motion
     n = len(motion.skin)
     t1 = time.perf_counter()
-    tmp = out_path.with_name(out_path.stem + ".tmp" + out_path.suffix)
     renderer = face_mesh.HeadRenderer(mesh, head.speaker.head_texture, size)
     try:
-        with media.VideoWriter(tmp, fps, audio=head.samples, sample_rate=16000) as w:
+        with atomic_output(out_path, suffix=out_path.suffix) as tmp, \
+                media.VideoWriter(tmp, fps, audio=head.samples, sample_rate=16000) as w:
             for t in tqdm(range(n), desc="render-mesh", unit="frame", leave=False):
                 w.write(renderer.render(motion, t))
     finally:
         renderer.close()
-    os.replace(tmp, out_path)
     t2 = time.perf_counter()
     if export:
         mesh_export.write_animated_mesh(export, mesh.skin, motion.skin, head.speaker.head_texture, fps)

@@ -182,11 +182,8 @@ def evaluate(model: dict, val: list[dict], pca_frames: dict, basis: dict, iod_px
 
 
 def write_outputs(metrics: dict, history: list[dict], k) -> None:
-    Path(k.metrics).parent.mkdir(parents=True, exist_ok=True)
-    tmp = k.metrics + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(metrics, f, indent=2)
-    os.replace(tmp, k.metrics)
+    with atomic_output(k.metrics, suffix=".json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=2))
     Path(k.plots).parent.mkdir(parents=True, exist_ok=True)
     tmp = k.plots + ".tmp"
     cols = ["step", "epoch", "position", "motion", "emotion", "val_position", "val_error_px"]
