@@ -29,7 +29,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.params import as_dict, parse  # noqa: E402
+from pipeline.params import as_dict, front_end_store, parse  # noqa: E402
 
 PERSON_STAGES = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
                  ("frontalize", "stages.frontalize.frontalize"), ("whisper", "stages.whisper.whisper")]
@@ -81,6 +81,7 @@ def main() -> None:
                          plots=str((a.out / "train_loss.csv").resolve()))
     if a.steps:
         tree["train"]["steps"] = a.steps
+    tree["train"]["feature_store"] = front_end_store(tree)
     tfile = a.out / "params.yaml"
     tfile.write_text(yaml.safe_dump(as_dict(parse(tree, str(tfile))), sort_keys=False))
     print(f"== base model: {run('stages.train.train', tfile):.0f} s → {a.out / 'model'}", flush=True)

@@ -25,6 +25,10 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.params import front_end_store  # noqa: E402
+
 LENGTHS = (20, 40, 60, None)
 PREP = ("ingest.ingest", "landmarks.landmarks", "frontalize.frontalize", "pca.pca", "whisper.whisper")
 FAMILIES = {"lstm": ("train", "stages.train.train"), "lstm_base": ("train", "stages.train.train"),
@@ -73,6 +77,7 @@ def main() -> None:
     for family in a.families:
         for secs in LENGTHS:
             t = cell(yaml.safe_load(prep.read_text()), family, secs, a.run, a.base)
+            t["train"]["feature_store"] = front_end_store(t)
             pfile = a.run / f"p_{family}_{secs or 'all'}.yaml"
             pfile.write_text(yaml.safe_dump(t, sort_keys=False))
             metrics = Path(t[FAMILIES[family][0]]["metrics"])

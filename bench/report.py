@@ -29,7 +29,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.params import as_dict, parse  # noqa: E402
+from pipeline.params import as_dict, front_end_store, parse  # noqa: E402
 
 STAGES = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
           ("frontalize", "stages.frontalize.frontalize"), ("pca", "stages.pca.pca"),
@@ -86,6 +86,7 @@ def main() -> None:
     run_dir.mkdir(parents=True, exist_ok=True)
     report.mkdir(parents=True, exist_ok=True)
     params = merged(a.config, a.set)
+    params["train"]["feature_store"] = front_end_store(params)
     params_file = run_dir / "params.yaml"
     params_file.write_text(yaml.safe_dump(params, sort_keys=False))
     for stage, module in STAGES:
@@ -149,6 +150,7 @@ def voices_models(params: dict, run_dir: Path, base_people: list[str], skip_exis
     tree["train"].update({k: shipped[k] for k in FRONT_END_KEYS}, baselines=False,
                          out=str(run_dir / "models" / "lstm_shipped"), metrics=str(run_dir / "metrics" / "train_shipped.json"),
                          plots=str(run_dir / "plots" / "train_shipped.csv"))
+    tree["train"]["feature_store"] = front_end_store(tree)
     pfile = run_dir / "params_shipped.yaml"
     pfile.write_text(yaml.safe_dump(tree, sort_keys=False))
     if (tree["train"]["features"], tree["train"]["delay"]) != (params["train"]["features"], params["train"]["delay"]):

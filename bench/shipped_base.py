@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from base_model import run  # noqa: E402  (bench/base_model.py: one stage as a subprocess, its seconds)
 from pipeline.models.base_model import MODEL_FILES, write_manifest  # noqa: E402
-from pipeline.params import as_dict, parse  # noqa: E402
+from pipeline.params import as_dict, front_end_store, parse  # noqa: E402
 
 PREPROCESS = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
               ("frontalize", "stages.frontalize.frontalize"), ("pca", "stages.pca.pca"),
@@ -61,6 +61,7 @@ def base_params(corpus: str, steps: int, run_dir: Path) -> dict:
                          out=str(run_dir / "base_shipped" / "model"),
                          metrics=str(run_dir / "base_shipped" / "train.json"),
                          plots=str(run_dir / "base_shipped" / "train_loss.csv"))
+    tree["train"]["feature_store"] = front_end_store(tree)
     return as_dict(parse(tree, "bench/shipped_base.py"))
 
 

@@ -44,7 +44,7 @@ from pipeline.errors import LipsynthError, ParameterError
 from pipeline.io.runner import run_main, setup_logging
 from pipeline.io import media
 from pipeline.io.segments import cut_video, segment_bounds, time_split, video_seconds
-from pipeline.params import as_dict, load_params, parse
+from pipeline.params import as_dict, front_end_store, load_params, parse
 
 log = logging.getLogger("lipsynth.personalize")
 STAGES = (("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
@@ -127,6 +127,7 @@ def plan(args, base_config: dict | None, footage, work: Path) -> dict:
         if base_config.get("encoder"):
             tree["whisper"].update(window_seconds=base_config["encoder"]["window_s"],
                                    overlap_seconds=base_config["encoder"]["overlap_s"])
+    t["feature_store"] = front_end_store(tree)
     return as_dict(parse(tree, str(work / "params.yaml")))
 
 

@@ -255,6 +255,8 @@ class Train:
         metadata={"help": "corpus: input dims by the training mean/variance (the paper) | utterance: per-video CMVN first"})
     features: str = field(default="whisper",
         metadata={"help": "audio front end: whisper (384-D Whisper tiny.en encoder states) | mfcc (the paper's 28-D) | phonetic (40 phone indicators) | mfcc+phonetic (68-D)"})
+    feature_store: str = field(default="store/whisper.zarr",
+        metadata={"help": "the one store `features` reads, the train stage's dependency: whisper.out (whisper), phonetic.out (phonetic, mfcc+phonetic) or ingest.out (mfcc)"})
     vtlp_warps: list = field(default_factory=list,
         metadata={"help": "MFCC front ends only: VTLP augmentation, extra copies at these frequency-warp factors, one drawn per epoch"})
     pitch_shifts: list = field(default_factory=list,
@@ -580,6 +582,14 @@ class Params:
 
 
 SECTIONS = {f.name: f.default_factory for f in dataclasses.fields(Params)}
+FEATURE_STORE_OF = {"whisper": "whisper", "phonetic": "phonetic", "mfcc+phonetic": "phonetic", "mfcc": "ingest"}
+
+
+def front_end_store(params) -> str:
+    """The store ``train.features`` reads — the path ``train.feature_store`` must name: ``whisper.out``,
+    ``phonetic.out`` or ``ingest.out`` (MFCC). ``params``: a ``Params`` or a params dict."""
+    get = (lambda s, k: params[s][k]) if isinstance(params, dict) else (lambda s, k: getattr(getattr(params, s), k))
+    return get(FEATURE_STORE_OF[get("train", "features")], "out")
 
 
 def _type_ok(value, kind) -> bool:

@@ -18,7 +18,7 @@ import zarr
 
 from pipeline.params import load_params
 from tests.conftest import ROOT
-from tests.helpers import copy_project, dvc, dvc_status
+from tests.helpers import copy_project, dvc, dvc_status, one_error_line
 from tests.helpers.media import write_wav
 
 
@@ -260,6 +260,10 @@ def test_phonetic_store_and_a_phonetic_model(project, tmp_path):
     for v in ph.attrs["videos"]:
         rows = phones[v["first_mfcc"]:v["first_mfcc"] + v["n_mfcc"]]
         assert (rows.sum(1) == 1).all(), v["name"]
+    # the shipped whisper front end's training depends on the whisper store only: `dvc repro train` never runs
+    # the phone recogniser
+    train_deps = {d["path"] for d in yaml.safe_load((project / "dvc.lock.first").read_text())["stages"]["train"]["deps"]}
+    assert "store/whisper.zarr" in train_deps and "store/phonetic.zarr" not in train_deps, train_deps
     with edited_params(project, "train", "features", "mfcc+phonetic"):
         status = set(dvc_status(project))
     assert "train" in status and not {"ingest", "phonetic", "pca", "train_brand", "train_karras"} & status, status
@@ -267,8 +271,12 @@ def test_phonetic_store_and_a_phonetic_model(project, tmp_path):
     params["train"].update(features="mfcc+phonetic", steps=15, baselines=False, out=str(tmp_path / "m"),
                            metrics=str(tmp_path / "m.json"), plots=str(tmp_path / "m.csv"))
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
-    r = subprocess.run([sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")],
-                       cwd=project, capture_output=True, text=True, timeout=1200)
+    train = [sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")]
+    r = subprocess.run(train, cwd=project, capture_output=True, text=True, timeout=1200)
+    assert "train.feature_store='store/whisper.zarr'" in one_error_line(r) and "set train.feature_store: store/phonetic.zarr" in r.stderr
+    params["train"]["feature_store"] = "store/phonetic.zarr"
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    r = subprocess.run(train, cwd=project, capture_output=True, text=True, timeout=1200)
     assert r.returncode == 0, r.stderr[-2000:]
     assert json.loads((tmp_path / "m" / "config.json").read_text())["features"] == "mfcc+phonetic"
     out = predict_mouth(load_audio(project / "data" / "synthetic_speaker" / "speaker_01.mp4"), tmp_path / "m", 25)
@@ -359,7 +367,7 @@ def test_fine_tuning_from_a_model_folder_trains_only_what_it_is_told(project, tm
         assert same == k.startswith("lstm."), k
     cfg = json.loads((tmp_path / "m" / "config.json").read_text())
     assert cfg["params"]["init_from"] == str(project / "models" / "lstm") and cfg["hidden"] == 60
-    params["train"].update(features="mfcc", fine_tune="all")
+    params["train"].update(features="mfcc", feature_store="store/ingest.zarr", fine_tune="all")
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
     r = subprocess.run([sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")],
                        cwd=project, capture_output=True, text=True, timeout=600)

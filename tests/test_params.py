@@ -75,3 +75,20 @@ def test_stage_main_records_the_wall_time_of_a_stage_that_succeeds_only(tmp_path
     table = json.loads((tmp_path / "logs" / "stage_seconds.json").read_text())
     assert set(table) == {"delay_sweep"} and 0 <= table["delay_sweep"] < 5
     assert not list((tmp_path / "logs").glob("*.tmp-*"))
+
+
+def test_the_train_stage_depends_on_exactly_the_store_its_front_end_reads():
+    from pipeline.params import front_end_store
+    from stages.train.train import feature_store
+    p = load_params(ROOT / "params.yaml")
+    assert p.train.feature_store == front_end_store(p) == front_end_store(as_dict(p)) == p.whisper.out
+    assert feature_store(p) == dict(phonetic_path=None, whisper_path=p.whisper.out)
+    p.train.features = "mfcc+phonetic"
+    with pytest.raises(ParameterError, match=r"set train.feature_store: store/phonetic.zarr"):
+        feature_store(p)
+    p.train.feature_store = p.phonetic.out
+    assert feature_store(p) == dict(phonetic_path=p.phonetic.out, whisper_path=None)
+    p.train.features, p.train.feature_store = "mfcc", p.ingest.out
+    assert feature_store(p) == dict(phonetic_path=None, whisper_path=None)
+    deps = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]["train"]["deps"]
+    assert "${train.feature_store}" in deps and not {"${phonetic.out}", "${whisper.out}"} & set(deps)

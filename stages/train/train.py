@@ -22,7 +22,7 @@ import numpy as np
 
 from pipeline.audio import front_ends
 from pipeline.errors import LipsynthError, ParameterError
-from pipeline.params import Params, Train, as_dict
+from pipeline.params import FEATURE_STORE_OF, Params, Train, as_dict, front_end_store
 from pipeline.io.runner import stage_main, write_timing
 from pipeline.io.store import atomic_output, open_group
 from pipeline.measures import mouth_metrics
@@ -280,9 +280,23 @@ def write_outputs(metrics: dict, curves: dict, p: Train) -> None:
     os.replace(tmp, p.plots)
 
 
+def feature_store(params: Params) -> dict[str, str | None]:
+    """The front end's store, as the DVC stage declares it (``train.feature_store``), as ``run``'s
+    ``phonetic_path``/``whisper_path``; the stage reads no other front end's store, so ``dvc repro train``
+    runs only the front end it uses. A ``feature_store`` that is not the one ``features`` reads stops
+    with one line naming the key to set."""
+    t = params.train
+    section, expected = FEATURE_STORE_OF[t.features], front_end_store(params)
+    if t.feature_store != expected:
+        raise ParameterError(f"train.feature_store={t.feature_store!r}: train.features {t.features!r} reads "
+                             f"{section}.out ({expected!r}); set train.feature_store: {expected}")
+    return dict(phonetic_path=expected if section == "phonetic" else None,
+                whisper_path=expected if section == "whisper" else None)
+
+
 def main(argv=None) -> int:
     return stage_main("lipsynth train", __doc__, lambda p: run(p, p.ingest.out, p.pca.out, p.landmarks.out, p.frontalize.out,
-                                                             p.phonetic.out, p.whisper.out),
+                                                             **feature_store(p)),
                       argv)
 
 
