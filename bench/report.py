@@ -121,19 +121,9 @@ def main() -> None:
                    "--clips", str(a.clips), "--out", str(work)] + flags
             subprocess.run(cmd, cwd=ROOT, check=True)
         shutil.copy(work / "quality.json", report / out)
-    # the HTML page (evaluate → report), copied in. The page shows logs/*.timing.json: set the
-    # project's own aside so that it shows this corpus's (evaluate's last clip), then put them back
-    logs = ROOT / "logs"
-    kept = {p: p.read_bytes() for p in (logs / f"{s}.timing.json" for s in ("synthesize", "composite", "evaluate"))
-            if p.is_file()}
-    for p in kept:
-        p.unlink()
-    try:
-        for stage, module in PAGE:
-            run_stage(stage, module, params, params_file, a.skip_existing)
-    finally:
-        for p, data in kept.items():
-            p.write_bytes(data)
+    # the HTML page (evaluate → report), copied in
+    for stage, module in PAGE:
+        run_stage(stage, module, params, params_file, a.skip_existing)
     page = Path(params["report"]["out"])
     shutil.copy(page / "index.html", report / "index.html")
     shutil.rmtree(report / "videos", ignore_errors=True)

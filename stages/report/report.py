@@ -13,11 +13,11 @@ What it shows, from the files the other stages write:
   (target | result | texture, H.264) copied next to the page;
 - with ``report.benches`` (a folder of bench results; ``bench/report.py`` sets it): the
   ``lipsynth speak`` path beside the DVC path, and other people's voices per person and model;
-- synthesis speed per phase from ``logs/*.timing.json`` when present (untracked: "not measured"
-  otherwise), the params file, the git commit and the date.
+- the params file. Not the date, the commit or the last run's timings (``logs/*.timing.json``): the page is
+  the same bytes on every run and machine, so ``dvc repro`` on a fresh clone reproduces its hash.
 
 Plots are inline SVG (matplotlib), videos are relative ``<video src>``: the folder works offline,
-copied anywhere. Everything but the date/commit line and the timings is deterministic.
+copied anywhere.
 
 Run: ``python -m stages.report.report`` (the DVC stage) or ``lipsynth report [--params P] [--open]``.
 """
@@ -25,24 +25,21 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime as _dt
 import html
 import json
 import logging
 import shutil
-import subprocess
 from pathlib import Path
 
 from pipeline.params import Params, as_dict, load_params
 from pipeline.io.runner import run_main, setup_logging
 from pipeline.io.store import atomic_output
 from stages.report.tables import (EVAL_COLUMNS, PATH_COLUMNS, brand_paper_rows, brand_rows, budget_text, evaluate_rows, fmt,
-                                   karras_rows, model_rows, path_rows, table, timing_tables, voice_rows)
+                                   karras_rows, model_rows, path_rows, table, voice_rows)
 from stages.report.plots import (em_plot, karras_plot, loss_plot, num, opening_plot, sweep_plot,
                                   voice_plot)
 
 log = logging.getLogger("lipsynth.report")
-TIMING_LOGS = ("synthesize", "composite", "evaluate", "train_karras", "render_mesh")
 
 
 # ---------------------------------------------------------------- reading inputs
@@ -58,17 +55,6 @@ def read_csv(path) -> list[dict]:
         return []
     with open(p, newline="") as f:
         return list(csv.DictReader(f))
-
-
-def git_commit(root: Path) -> str:
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
-                              timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
-                               capture_output=True, text=True, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown (no git)"
-    return (head or "unknown (not a git checkout)") + (" + uncommitted changes" if head and dirty else "")
 
 
 # ---------------------------------------------------------------- tables
@@ -103,11 +89,10 @@ video{max-width:100%;background:#000}pre{background:#f6f6f6;padding:.8em;overflo
 def build_html(ctx: dict) -> str:
     """The page from gathered inputs (pure: no file access). ``ctx`` keys: title, train, loss_rows,
     sweep_rows, paper_delay_ms, evaluate, clips [(label, clip dict, opening rows, video src, duration)],
-    timings {name: dict|None}, params_text, commit, date."""
+    params_text. Nothing on the page depends on when or where it was made."""
     e = html.escape
     parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{e(ctx['title'])}</title>"
-             f"<style>{CSS}</style></head><body>", f"<h1>{e(ctx['title'])}</h1>",
-             f"<p class=\"meta\" id=\"meta\">commit {e(ctx['commit'])} · generated {e(ctx['date'])}</p>"]
+             f"<style>{CSS}</style></head><body>", f"<h1>{e(ctx['title'])}</h1>"]
     parts.append("<h2>Audio → mouth shape: model families</h2>")
     rows = model_rows(ctx.get("train"))
     mean_px = num(((ctx.get("train") or {}).get("baseline_mean_shape") or {}).get("mouth_error_px"))
@@ -184,7 +169,10 @@ def build_html(ctx: dict) -> str:
         parts.append(table(["model (front end)", "person", "clips", "corr lag 0", "corr best lag", "within one frame",
                             "source offset (frames)", "corr at source offset"], voice_rows(ctx["voices"]), "voices"))
         parts.append(f"<div class=\"plot\" id=\"plot-voices\">{voice_plot(ctx['voices'])}</div>")
-    parts.append("<h2>Synthesis speed</h2>" + timing_tables(ctx.get("timings", {})))
+    parts.append("<h2>Synthesis speed</h2><p>Measured on every run, so not on this page (its bytes are the same on "
+                 "every run and machine, and DVC's cache can trust them): the last run's thread time per frame and "
+                 "phase is in <code>logs/synthesize.timing.json</code> and <code>logs/composite.timing.json</code>; "
+                 "<code>bench/synthesize.py</code> measures it properly.</p>")
     parts.append(f"<h2>Parameters</h2><pre id=\"params\">{e(ctx.get('params_text', ''))}</pre>")
     parts.append("</body></html>\n")
     return "\n".join(parts)
@@ -208,9 +196,7 @@ def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[d
                karras=read_json(root / params.karras.metrics), karras_rows=read_csv(root / params.karras.plots),
                loss_rows=read_csv(root / params.train.plots), sweep_rows=read_csv(root / params.delay_sweep.plots),
                paper_delay_ms=params.report.paper_delay_ms, evaluate=ev, clips=clips,
-               timings={n: read_json(root / "logs" / f"{n}.timing.json") for n in TIMING_LOGS},
-               params_text=shown_params(params), commit=git_commit(root), **benches(params.report.benches, root),
-               date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"))
+               params_text=shown_params(params), **benches(params.report.benches, root))
     return ctx, copies
 
 

@@ -156,16 +156,3 @@ def table(header: list[str], rows: list[list[str]], cls: str = "") -> str:
     h = "".join(f"<th>{html.escape(c)}</th>" for c in header)
     b = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
     return f'<table class="{cls}"><thead><tr>{h}</tr></thead><tbody>{b}</tbody></table>'
-
-
-def timing_tables(logs: dict[str, dict | None]) -> str:
-    out = []
-    for name, t in logs.items():
-        if not t:
-            out.append(f"<p><b>{html.escape(name)}</b>: not measured (no logs/{html.escape(name)}.timing.json)</p>")
-            continue
-        unit = {"evaluate": "s per clip", "train_karras": "seconds, or as named"}.get(
-            name, "ms per frame (thread time) or as named")
-        rows = [[k, fmt(v, 2)] for k, v in t.items()]
-        out.append(f"<h3>{html.escape(name)} <small>({unit})</small></h3>" + table(["phase", "value"], rows, "timing"))
-    return "\n".join(out)
