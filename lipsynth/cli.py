@@ -26,7 +26,7 @@ COMMANDS = {
     "synthesize": ("stages.synthesize.synthesize", "new audio → re-timed lower-face textures → store/synthesize.zarr"),
     "composite": ("stages.composite.composite", "synthesized textures into the target video → outputs/…/result.mp4"),
     "dvc-deps": ("lipsynth.dvc_deps", "check (or --write) the code deps of dvc.yaml's stages, derived from their imports"),
-    "params-doc": ("lipsynth.params_doc", "print, --write or --check docs/parameters_reference.md (rendered from pipeline/params.py)"),
+    "params-doc": ("lipsynth.params_doc", "print, --write or --check docs/parameters_reference.md (rendered from pipeline/params/)"),
     "speak": ("lipsynth.speak", "audio + any video of the speaker → lip-synced MP4 (preprocesses the target)"),
     "render-mesh": ("lipsynth.render_mesh", "audio → the model's speaker as an animated textured 3D head (front + 3/4 view) → MP4, OBJ + point cache"),
     "cut": ("lipsynth.cut", "one video → consecutive segment files (data.split: time holds out its end)"),

@@ -30,15 +30,18 @@ ROOT = Path(__file__).resolve().parents[1]
 PROJECT_PACKAGES = ("pipeline", "stages", "lipsynth")
 CODE_DEP = re.compile(r"^(pipeline|stages|lipsynth)/.*\.py$")
 # pipeline's rooms and their rank: a module may import its own room and lower ranks only.
-# "" = the modules at pipeline/'s top (params, errors) that every room uses.
-PIPELINE_ROOMS = {"": 0, "io": 1, "face": 2, "audio": 2, "video": 2, "models": 3, "measures": 4}
+# "" = the modules at pipeline/'s top (errors, simd_level); "params" (the typed params.yaml) uses them only.
+PIPELINE_ROOMS = {"": 0, "params": 1, "io": 2, "face": 3, "audio": 3, "video": 3, "models": 4, "measures": 5}
 
 
 def pipeline_room(module: str) -> str | None:
-    """``pipeline.models.x`` → "models", ``pipeline.params`` → "", a non-pipeline module → None."""
+    """``pipeline.models.x`` → "models", ``pipeline.params`` (a room's package) → "params",
+    ``pipeline.errors`` → "", a non-pipeline module → None."""
     parts = module.split(".")
     if parts[0] != "pipeline":
         return None
+    if len(parts) == 2 and parts[1] in PIPELINE_ROOMS:
+        return parts[1]
     return parts[1] if len(parts) > 2 else ""
 
 

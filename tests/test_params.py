@@ -19,7 +19,7 @@ def test_the_shipped_params_file_equals_the_code_defaults():
     assert as_dict(load_params(ROOT / "params.yaml")) == as_dict(Params())
     assert set(shipped()) == set(as_dict(Params()))
     for name, section in shipped().items():
-        assert set(section) == set(as_dict(getattr(Params(), name))), f"{name}: keys differ from pipeline/params.py"
+        assert set(section) == set(as_dict(getattr(Params(), name))), f"{name}: keys differ from pipeline/params/"
 
 
 def test_sections_are_typed_attributes():
@@ -37,6 +37,17 @@ def test_sections_are_typed_attributes():
     (lambda t: t["data"].update(on_bad_input="ignore"), r"data\.on_bad_input='ignore'"),
     (lambda t: t.update(frontalise={}), r"unknown section 'frontalise'"),
     (lambda t: t.update(pca=[1, 2]), r"section 'pca' must be a mapping"),
+    # values (each section's validate()): bounds, then rules across keys
+    (lambda t: t["train"].update(steps=0), r"train\.steps=0: must be at least 1"),
+    (lambda t: t["pca"].update(n_components=40), r"pca\.n_components=40: must be in \[1, 36\]"),
+    (lambda t: t["data"].update(val_fraction=1.0), r"data\.val_fraction=1\.0: must be in \[0, 1\)"),
+    (lambda t: t["ingest"].update(crop_size=226), r"ingest\.crop_size=226: must be a multiple of 4"),
+    (lambda t: t["ingest"].update(max_crop_size=200), r"ingest\.max_crop_size=200: must be a multiple of 16, at least 224"),
+    (lambda t: t["whisper"].update(overlap_seconds=6), r"whisper\.overlap_seconds=6: must be between 0 and half"),
+    (lambda t: t["whisper"].update(window_seconds=40), r"whisper\.window_seconds=40: the encoder takes windows of 1–30 s"),
+    (lambda t: t["train"].update(vtlp_warps=[0.9]), r"train\.vtlp_warps / pitch_shifts='whisper': augment MFCC"),
+    (lambda t: t["train"].update(features="mfcc", pitch_shifts=[20]), r"train\.pitch_shifts=20: is not a shift"),
+    (lambda t: t["composite"].update(crf=60), r"composite\.crf=60: must be in \[0, 51\]"),
 ])
 def test_a_mistake_names_the_key(edit, message):
     tree = shipped()

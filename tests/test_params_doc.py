@@ -1,4 +1,4 @@
-"""One place per parameter: each key's meaning sits beside its default in pipeline/params.py, and
+"""One place per parameter: each key's meaning sits beside its default in pipeline/params/, and
 docs/parameters_reference.md is rendered from there (a stale reference fails here)."""
 import dataclasses
 import typing
@@ -28,8 +28,15 @@ def test_every_field_has_a_one_line_help():
             text = f.metadata.get("help")
             if not isinstance(text, str) or not text.strip() or "\n" in text or len(text) > 160:
                 bad.append(f"{name}.{f.name}: {text!r}")
-            if set(f.metadata) - {"help", "advanced"} or f.metadata.get("advanced", True) is not True:
+            if set(f.metadata) - {"help", "advanced", "min", "max"} or f.metadata.get("advanced", True) is not True:
                 bad.append(f"{name}.{f.name}: unexpected metadata {dict(f.metadata)}")
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+            for bound in ("min", "max"):
+                if bound in f.metadata and not isinstance(default, (int, float)) and default != "auto":
+                    bad.append(f"{name}.{f.name}: a {bound} on a non-numeric key")
+            lo, hi = f.metadata.get("min", float("-inf")), f.metadata.get("max", float("inf"))
+            if isinstance(default, (int, float)) and not lo <= default <= hi:
+                bad.append(f"{name}.{f.name}: default {default} outside its bounds [{lo}, {hi}]")
     assert not bad, "fields without a proper one-line help:\n" + "\n".join(bad)
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 
 from pipeline import resample
-from pipeline.face.geometry import project, rotation
+from pipeline.face.geometry import rotation
 
 
 @dataclass

@@ -6,6 +6,12 @@ functions compare them: mouth landmark error next to a static mouth, inner-lip o
 correlation and best lag, mouth-region mean absolute difference, sharpness and flicker. The pixel
 measures use the mouth region, a box around the original's lip landmarks.
 
+Two measures look at the fine detail only, the band a weighted median loses: ``detail_energy``
+(mean power of the high-pass band, wavelengths below ≈ IOD/8) and ``detail_flicker`` (that band's
+change between consecutive frames after motion compensation by DIS optical flow, so that a mouth
+that moves is not counted as flicker). The band scales with the face (σ = IOD/50), so the same
+measure applies at 256² and at 4K.
+
 Used by the ``evaluate`` stage and by ``lipsynth.lipsync_quality`` (benchmarks).
 """
 from __future__ import annotations
@@ -70,6 +76,51 @@ def flicker(frames: np.ndarray, box) -> float:
     return float(np.abs(np.diff(crop, axis=0)).mean())
 
 
+def detail_band(frame: np.ndarray, sigma: float) -> np.ndarray:
+    """High-pass band (float32, grey levels) of a grey image: the image minus its Gaussian blur (σ px)."""
+    import cv2
+    x = frame.astype(np.float32)
+    return x - cv2.GaussianBlur(x, (0, 0), sigma)
+
+
+def detail_energy(frames: np.ndarray, box, sigma: float) -> float:
+    """Median over frames of the mean squared ``detail_band`` in the box (grey levels²).
+
+    The band is taken on the whole frame, then cropped (no edge effects at the box)."""
+    x0, y0, x1, y1 = box
+    return float(np.median([np.mean(detail_band(f, sigma)[y0:y1, x0:x1] ** 2) for f in frames]))
+
+
+def detail_flicker(frames: np.ndarray, box, sigma: float) -> float:
+    """Mean over consecutive frames of mean |band(t+1) − band(t) moved by the flow t → t+1| in the box.
+
+    The flow (DIS, on the box's grey crop grown by a margin, smoothed by σ) follows the mouth's
+    motion, so what remains is detail that appears, vanishes or jitters: temporal noise."""
+    import cv2
+    x0, y0, x1, y1 = box
+    m = int(np.ceil(4 * sigma)) + 4
+    h, w = frames.shape[1:3]
+    a0, b0, a1, b1 = max(x0 - m, 0), max(y0 - m, 0), min(x1 + m, w), min(y1 + m, h)
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    gy, gx = np.mgrid[b0:b1, a0:a1].astype(np.float32)
+    gx -= a0
+    gy -= b0
+    out = []
+    prev = None
+    for f in frames:
+        crop = f[b0:b1, a0:a1]
+        band = detail_band(crop, sigma)
+        smooth = cv2.GaussianBlur(crop, (0, 0), max(sigma, 0.5))
+        if prev is not None:
+            flow = dis.calc(smooth, prev[1], None)        # smooth(p) ≈ prev(p + flow(p))
+            moved = cv2.remap(prev[0], gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
+            inner = (slice(y0 - b0, y1 - b0), slice(x0 - a0, x1 - a0))
+            out.append(float(np.abs(band[inner] - moved[inner]).mean()))
+        prev = (band, smooth)
+    return float(np.mean(out)) if out else float("nan")
+
+
 def best_lag(a: np.ndarray, b: np.ndarray, max_lag: int = 5) -> int:
     """Lag (frames) in ±``max_lag`` maximising the correlation of a[t + lag] with b[t] (NaN = missing)."""
     best, score = 0, -np.inf
@@ -130,6 +181,9 @@ def compare(out_gray: np.ndarray, out_lm: np.ndarray, out_ok: np.ndarray,
     seq_o[ok], seq_r[ok] = op_o, op_r
     sharp_o, sharp_r = sharpness(out_gray[:n], box), sharpness(ref_gray[:n], box)
     flick_o, flick_r = flicker(out_gray[:n], box), flicker(ref_gray[:n], box)
+    band = iod / 50                                        # px: the detail band scales with the face
+    energy_o, energy_r = detail_energy(out_gray[:n], box, band), detail_energy(ref_gray[:n], box, band)
+    dflick_o, dflick_r = detail_flicker(out_gray[:n], box, band), detail_flicker(ref_gray[:n], box, band)
     return {
         "frames": int(n), "frames_with_landmarks": int(ok.sum()), "interocular_px": float(iod),
         "mouth_error_px": float(err.mean()), "mouth_error_iod_pct": float(100 * err.mean() / iod),
@@ -138,4 +192,5 @@ def compare(out_gray: np.ndarray, out_lm: np.ndarray, out_ok: np.ndarray,
         "opening_best_lag": best_lag(seq_o, seq_r),
         "mouth_mad": mean_abs_difference(out_gray[:n], ref_gray[:n], box),
         "sharpness_ratio": sharp_o / sharp_r, "flicker_ratio": flick_o / flick_r, "mouth_box": list(box),
+        "detail_energy_ratio": energy_o / energy_r, "detail_flicker_ratio": dflick_o / dflick_r,
     }

@@ -121,7 +121,7 @@ def crop_box(face_boxes: np.ndarray, crop_scale: float, shift_down: float) -> tu
     return float(cx - side / 2), float(cy - side / 2), float(side)
 
 
-MIN_CROP = 224              #: px: the smallest automatic crop (the former fixed size)
+MIN_CROP = Ingest.MIN_CROP  #: px: the smallest automatic crop (the former fixed size)
 
 
 def auto_crop_size(face_widths_px, crop_scale: float, max_size: int) -> int:
@@ -338,10 +338,6 @@ def run(params: Params, out: str, require_audio: bool = True) -> list[dict]:
     """Ingest ``data.videos`` into ``out``. Training videos need their audio (``require_audio``);
     a target video that only receives new speech (``lipsynth speak``) does not."""
     data, p = params.data, params.ingest
-    if isinstance(p.crop_size, int) and p.crop_size % 4:
-        raise ParameterError(f"ingest.crop_size={p.crop_size}: must be a multiple of 4 (I420 storage)")
-    if p.max_crop_size < MIN_CROP or p.max_crop_size % 16:
-        raise ParameterError(f"ingest.max_crop_size={p.max_crop_size}: must be a multiple of 16, at least {MIN_CROP}")
     paths = list_videos(data.videos)
     names = [video_name(q) for q in paths]
     splits = (time_split(names, data.val_fraction) if data.split == "time"

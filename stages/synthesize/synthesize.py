@@ -49,6 +49,7 @@ from stages.synthesize import retime as rt
 from stages.synthesize.speech_flags import speech_flags
 from stages.synthesize import teeth as th
 from stages.synthesize import texture as tx
+from stages.synthesize import two_band
 
 log = logging.getLogger("lipsynth.synthesize")
 REFERENCE_TEXTURE = 128.0     #: texture px the px-valued params (teeth σ, feathers, unsharp σ) are given at
@@ -156,6 +157,21 @@ def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray,
     return mapping, repeated
 
 
+def detail_plan(lips: np.ndarray, shapes: np.ndarray, pool: np.ndarray, p: Synthesize) -> list:
+    """``synthesize.detail: two_band``: per output frame, the real frames whose detail it shows and
+    their weights (``two_band.crossfade_plan`` of the Viterbi path, ``two_band.detail_sources``,
+    whose unary cost is a pool frame's lip-shape distance / (2σ²) of that output frame, Eq. 11)."""
+    costs = np.zeros((len(lips), len(shapes)), np.float32)
+    for i, lip in enumerate(lips):
+        idx, d2 = tx.select_candidates(lip, shapes, p.n)
+        costs[i] = d2 / (2 * tx.solve_sigma(d2, idx, p.alpha) ** 2)
+    sources = two_band.detail_sources(costs, pool, p.detail_candidates, p.detail_switch_cost, p.detail_hold_cost,
+                                       reach=p.n)
+    runs = 1 + int(np.sum(np.diff(pool[sources]) != 1))
+    log.info("two-band detail: %d output frames from %d runs of consecutive real frames", len(lips), runs)
+    return two_band.crossfade_plan(sources, pool, p.detail_fade_frames)
+
+
 def open_stores(params: Params, pca: bool = True) -> dict:
     """The stores synthesize reads: landmarks, frontalize, and pca when asked and present (only to
     check the model's PCA basis)."""
@@ -199,8 +215,6 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
     samples = load_audio(p.audio)
     if mouth is None:
         mouth = predict_mouth(samples, p.model, entry["fps"], device=p.device, source=p.audio, emotion=p.emotion)
-    if p.retarget not in ("auto", "always", "never"):
-        raise ParameterError(f"synthesize.retarget={p.retarget!r}: choose auto, always or never")
     same_corpus = "pca" in stores and mouth["pca_fingerprint"] == stores["pca"].attrs["fingerprint"]
     lips = mouth["lip_points"].astype(np.float64)
     store_iod = IOD_MM / fr.attrs["texture_window"]["mm_per_px"]
@@ -239,16 +253,32 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
                                      feather_px=px * p.teeth_feather_px)
     detail = dict(s_max=p.teeth_s_max, v_min=p.teeth_v_min, feather_px=px * p.teeth_feather_px,
                   unsharp_sigma=px * p.unsharp_sigma, unsharp_amount=p.unsharp_amount)
+    plan = None
+    if p.detail == "two_band":            # real detail replaces the teeth proxy and the unsharp mask
+        proxies, detail["unsharp_amount"] = None, 0.0
+        plan = detail_plan(lips, shapes, pool, p)
     log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
              " (given)" if up is not None or lo is not None else " (automatic)")
     T = pool_tex.shape[2]
     timing["candidate_pool"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    phases = dict(candidate_search=0.0, weighted_median=0.0, teeth=0.0)
+    phases = dict(candidate_search=0.0, weighted_median=0.0, teeth=0.0, **({"detail": 0.0} if plan else {}))
 
     def one(i):
-        rgb, info = tx.synthesize_texture(lips[i], shapes, lambda idx: pool_tex[idx], flm, p.n, p.alpha, proxies,
-                                          detail)
+        wanted = lips[i].reshape(len(LIP_POINTS), 2)
+        if p.detail == "median":
+            get = lambda idx: pool_tex[idx]                                            # noqa: E731
+        else:                                   # candidates moved onto the wanted lip points first
+            get = lambda idx: two_band.align_candidates(pool_tex[idx], shapes[idx], wanted,  # noqa: E731
+                                                        px * p.detail_warp_px)
+        rgb, info = tx.synthesize_texture(lips[i], shapes, get, flm, p.n, p.alpha, proxies, detail)
+        if p.detail != "median":
+            info["landmarks"][LIP_POINTS] = wanted
+        if plan is not None:
+            t_detail = time.perf_counter()
+            sources = [(th._rgb(pool_tex[r]), flm[r], w) for r, w in plan[i]]
+            rgb = two_band.two_band(rgb, info["landmarks"], sources, px * p.detail_band_px, px * p.detail_warp_px)
+            info["seconds"]["detail"] = time.perf_counter() - t_detail
         w = info["weights"] / info["weights"].sum()
         cloth = np.tensordot(w.astype(np.float32), pool_cloth[info["indices"]].astype(np.float32), 1)
         return rgb, info["landmarks"], info["sigma"], info["seconds"], np.round(cloth * 255).astype(np.uint8)

@@ -33,7 +33,6 @@ from pipeline.models.mouth_prediction import to_frames
 from stages.train import extra_corpora, fine_tune
 
 log = logging.getLogger("lipsynth.train")
-MODELS = ("lstm",)
 
 
 def load_sequences(ingest_path: str, pca_path: str, features: str = "mfcc", phonetic_path: str | None = None,
@@ -155,8 +154,6 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
     from pipeline.models.delayed_lstm import pick_device
     clock_start = time.perf_counter()
     p = params.train
-    if p.model not in MODELS:
-        raise ParameterError(f"train.model={p.model!r}: choose one of {', '.join(MODELS)}")
     data, basis, pattrs = load_sequences(ingest_path, pca_path, p.features, phonetic_path, whisper_path)
     if p.train_seconds:
         keep = seeded_subset([len(s["x"]) / 100 for s in data["train"]], p.train_seconds, p.seed)
@@ -176,22 +173,10 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
             raise ParameterError(f"train.init_from={p.init_from}: the base model has feature_norm "
                                  f"{base.get('feature_norm', 'corpus')!r} and delay {base['delay']}, this run "
                                  f"{p.feature_norm!r} and {p.delay}")
-        if p.fine_tune not in fine_tune.PARTS:
-            raise ParameterError(f"train.fine_tune={p.fine_tune!r}: choose one of {', '.join(fine_tune.PARTS)}")
         mean, std = init["feature_mean"], init["feature_std"]          # the base's weights expect its normalisation
         log.info("fine-tuning from %s (%s weights trained; its read-out re-expressed in this store's PCA basis)",
                  p.init_from, p.fine_tune)
-    if p.vtlp_warps or p.pitch_shifts:
-        if not front_ends.uses_mfcc(p.features):
-            raise ParameterError(f"train.vtlp_warps / train.pitch_shifts augment MFCC: train.features={p.features!r} has none")
-        bad = [a for a in p.vtlp_warps if not isinstance(a, (int, float)) or not 0.7 <= a <= 1.3]
-        if bad:
-            raise ParameterError(f"train.vtlp_warps: {bad[0]!r} is not a warp factor between 0.7 and 1.3")
-        bad = [a for a in p.pitch_shifts if not isinstance(a, (int, float)) or not -12 <= a <= 12]
-        if bad:
-            raise ParameterError(f"train.pitch_shifts: {bad[0]!r} is not a shift between -12 and 12 semitones")
-        if p.extra_corpora:
-            raise ParameterError("train.vtlp_warps / train.pitch_shifts do not apply to train.extra_corpora")
+    if p.vtlp_warps or p.pitch_shifts:                  # values checked when params are loaded (Train.validate)
         secs = augmented_copies(data, ingest_path, p.vtlp_warps, p.pitch_shifts, p.features, p.feature_norm)
         log.info("augmentation: %d VTLP copies (α = %s) and %d pitch-shifted copies (%s semitones) of every training "
                  "video in %.1f s", len(p.vtlp_warps), ", ".join(f"{a:g}" for a in p.vtlp_warps) or "-",

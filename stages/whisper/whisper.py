@@ -24,7 +24,6 @@ import time
 import numpy as np
 
 from pipeline.audio.whisper_encoder import STATE_DIM, load_encoder, whisper_features
-from pipeline.errors import ParameterError
 from pipeline.io.parallel import client_for, run_tasks
 from pipeline.io.runner import stage_main
 from pipeline.io.store import atomic_output, create_group, create_timed, open_group
@@ -47,11 +46,7 @@ def states_of_video(job: dict) -> float:
 
 
 def run(params: Params, ingest_path: str, out: str) -> dict:
-    w = params.whisper
-    if not 1.0 <= w.window_seconds <= 30.0:
-        raise ParameterError(f"whisper.window_seconds={w.window_seconds}: the encoder takes windows of 1–30 s")
-    if not 0.0 <= w.overlap_seconds <= w.window_seconds / 2:
-        raise ParameterError(f"whisper.overlap_seconds={w.overlap_seconds}: must be between 0 and half the window")
+    w = params.whisper                                    # values checked when params are loaded
     load_encoder(1)                                       # weights missing or altered: one line, before any work
     src = open_group(ingest_path)
     videos = [v for v in src.attrs["videos"] if not v.get("excluded") and v["n_mfcc"]]
