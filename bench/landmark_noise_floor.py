@@ -32,7 +32,7 @@ from pipeline.face.geometry import intrinsics, solve_pose  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.io.store import open_group  # noqa: E402
 from stages.frontalize import model3d  # noqa: E402
-from stages.ingest.ingest import cut_crop  # noqa: E402
+from stages.ingest.crop import cut_crop  # noqa: E402
 from stages.landmarks.landmarks import track_video  # noqa: E402
 
 

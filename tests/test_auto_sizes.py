@@ -7,7 +7,7 @@ import zarr
 from lipsynth.speak import same_window, with_texture_window
 from pipeline.params import Frontalize, Params
 from stages.frontalize.frontalize import auto_texture_size, crop_interocular, texture_window
-from stages.ingest.ingest import auto_crop_size
+from stages.ingest.crop import auto_crop_size
 
 
 def test_crop_keeps_the_footage_resolution_within_bounds():

@@ -113,7 +113,7 @@ def detail_flicker(frames: np.ndarray, box, sigma: float) -> float:
         smooth = cv2.GaussianBlur(crop, (0, 0), max(sigma, 0.5))
         if prev is not None:
             flow = dis.calc(smooth, prev[1], None)        # smooth(p) ≈ prev(p + flow(p))
-            moved = cv2.remap(prev[0], gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR,
+            moved = cv2.remap(prev[0], gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_CUBIC,
                               borderMode=cv2.BORDER_REPLICATE)
             inner = (slice(y0 - b0, y1 - b0), slice(x0 - a0, x1 - a0))
             out.append(float(np.abs(band[inner] - moved[inner]).mean()))

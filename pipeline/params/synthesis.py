@@ -59,7 +59,7 @@ class Synthesize(Section):
     unsharp_amount: float = field(default=0.25,
         metadata={"help": "§3.2 unsharp mask of the mouth region: amount a in I + a (I − G*I)"})
     detail: str = field(default="median",
-        metadata={"help": "median = §3.2 (weighted median + teeth proxy + unsharp mask) | aligned = the same, candidates warped onto the wanted lips first | two_band = aligned median's low band + a real frame's detail"})
+        metadata={"help": "median: §3.2 (weighted median, teeth proxy, unsharp) | aligned: candidates warped onto the lips first | two_band: median + a real frame's detail"})
     detail_candidates: int = field(default=8,
         metadata={"help": "two_band: nearest candidates per frame the Viterbi picks the detail source from", "min": 1})
     detail_switch_cost: float = field(default=2.0,

@@ -157,6 +157,10 @@ def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray,
     return mapping, repeated
 
 
+NOSE = np.r_[27:36]                               # held still while the lips are aligned
+ALIGNED = np.r_[LIP_POINTS, NOSE]
+
+
 def detail_plan(lips: np.ndarray, shapes: np.ndarray, pool: np.ndarray, p: Synthesize) -> list:
     """``synthesize.detail: two_band``: per output frame, the real frames whose detail it shows and
     their weights (``two_band.crossfade_plan`` of the Viterbi path, ``two_band.detail_sources``,
@@ -266,13 +270,13 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
 
     def one(i):
         wanted = lips[i].reshape(len(LIP_POINTS), 2)
-        if p.detail == "median":
+        if p.detail != "aligned":
             get = lambda idx: pool_tex[idx]                                            # noqa: E731
         else:                                   # candidates moved onto the wanted lip points first
-            get = lambda idx: two_band.align_candidates(pool_tex[idx], shapes[idx], wanted,  # noqa: E731
-                                                        px * p.detail_warp_px)
+            get = lambda idx: two_band.align_candidates(                                  # noqa: E731
+                pool_tex[idx], flm[idx][:, ALIGNED], np.concatenate([wanted, flm[idx[0]][NOSE]]), px * p.detail_warp_px)
         rgb, info = tx.synthesize_texture(lips[i], shapes, get, flm, p.n, p.alpha, proxies, detail)
-        if p.detail != "median":
+        if p.detail == "aligned":
             info["landmarks"][LIP_POINTS] = wanted
         if plan is not None:
             t_detail = time.perf_counter()

@@ -145,9 +145,12 @@ def displacement_field(src_lm: np.ndarray, dst_lm: np.ndarray, size: int, sigma:
     w = np.exp(-d2 / (2 * sigma ** 2))
     den = w.sum(-1) + 0.05                                                    # the anchor: d = 0
     disp = (w[..., None] * (s - d)).sum(2) / den[..., None]                   # (G, G, 2)
-    coarse = np.dstack([gx + disp[..., 0], gy + disp[..., 1]]).astype(np.float32)
-    fine = cv2.resize(coarse, ((len(g) - 1) * step + 1,) * 2, interpolation=cv2.INTER_LINEAR)[:size, :size]
-    return np.ascontiguousarray(fine[..., 0]), np.ascontiguousarray(fine[..., 1])
+    coarse = disp.astype(np.float32)
+    at = np.arange(size, dtype=np.float32) / step                  # grid node j sits at pixel j·step
+    ux, uy = np.meshgrid(at, at)
+    fine = cv2.remap(coarse, ux, uy, cv2.INTER_LINEAR)               # bilinear between nodes, corners aligned
+    px = np.arange(size, dtype=np.float32)
+    return (np.ascontiguousarray(fine[..., 0] + px[None, :]), np.ascontiguousarray(fine[..., 1] + px[:, None]))
 
 
 def align_candidates(textures: np.ndarray, src_points: np.ndarray, dst_points: np.ndarray,
@@ -166,15 +169,15 @@ def align_candidates(textures: np.ndarray, src_points: np.ndarray, dst_points: n
     for j, tex in enumerate(textures):
         mx, my = displacement_field(src_points[j], dst_points, size, sigma, points=every)
         if tex.ndim == 3:
-            out[j] = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            out[j] = cv2.remap(tex, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
             continue
         h = size // 2
-        out[j, :size] = cv2.remap(tex[:size], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        out[j, :size] = cv2.remap(tex[:size], mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
         hx = cv2.resize(mx, (h, h), interpolation=cv2.INTER_AREA) / 2 - 0.25      # half-res pixel centres
         hy = cv2.resize(my, (h, h), interpolation=cv2.INTER_AREA) / 2 - 0.25
         for k in range(2):            # I420: U then V, each (T/2, T/2) stored as T/4 rows of T
             plane = tex[size + k * h // 2: size + (k + 1) * h // 2].reshape(h, h)
-            warped = cv2.remap(plane, hx, hy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            warped = cv2.remap(plane, hx, hy, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
             out[j, size + k * h // 2: size + (k + 1) * h // 2] = warped.reshape(h // 2, size)
     return out
 
@@ -198,7 +201,7 @@ def align_to(candidate: np.ndarray, cand_lm: np.ndarray, target: np.ndarray, tar
     from the target's grey image to the landmark-warped candidate's (both smoothed by σ/4)."""
     size = candidate.shape[0]
     mx, my = displacement_field(cand_lm, target_lm, size, sigma)
-    warped = cv2.remap(candidate, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    warped = cv2.remap(candidate, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
     if not flow:
         return warped
     k = max(0.5, sigma / 4)
@@ -206,7 +209,7 @@ def align_to(candidate: np.ndarray, cand_lm: np.ndarray, target: np.ndarray, tar
     b = cv2.GaussianBlur(cv2.cvtColor(warped, cv2.COLOR_RGB2GRAY), (0, 0), k)
     f = _dis().calc(a, b, None)                                   # a(p) ≈ b(p + f(p))
     gy, gx = np.mgrid[0:size, 0:size].astype(np.float32)
-    return cv2.remap(warped, gx + f[..., 0], gy + f[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return cv2.remap(warped, gx + f[..., 0], gy + f[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
 
 
 def split_bands(rgb: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,128 @@
+"""synthesize.detail: two_band / aligned — the Viterbi over detail sources, the cross-fade plan, the
+warps, and the detail measures that judge them (pure functions, no stores)."""
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.errors import ParameterError
+from pipeline.measures.lipsync_measures import detail_energy, detail_flicker
+from stages.synthesize import two_band as tb
+
+
+def test_next_rows_follow_frame_ids_and_never_a_bank_frame():
+    ids = np.array([10, 11, 13, 12, -1, -2])
+    assert tb.next_rows(ids).tolist() == [1, 3, -1, 2, -1, -1]
+
+
+def test_the_path_follows_a_run_of_consecutive_frames_when_switching_costs_more():
+    # pool rows 0..9 = frames 0..9 of one video; row 10 = a bank frame. At each output frame the
+    # nearest row jumps about, but the run 2, 3, 4, 5 is always second best by a small margin.
+    n, p = 4, 11
+    costs = np.full((n, p), 9.0)
+    for i in range(n):
+        costs[i, 2 + i] = 1.3                    # the run
+        costs[i, 10] = 1.0 if i % 2 else 9.0     # a bank frame, nearest every other frame
+        costs[i, 7 - i] = 1.0                    # a different video frame, nearest each time
+    ids = np.r_[np.arange(10), -1]
+    assert tb.detail_sources(costs, ids, k=3, switch_cost=2.0, hold_cost=1.0).tolist() == [2, 3, 4, 5]
+    # free switches: the nearest row at every frame
+    assert tb.detail_sources(costs, ids, k=3, switch_cost=0.0, hold_cost=0.0).tolist() == [7, 6, 5, 4] or \
+        tb.detail_sources(costs, ids, k=3, switch_cost=0.0, hold_cost=0.0).tolist() == [7, 10, 5, 10]
+
+
+def test_the_path_is_the_exact_viterbi_optimum_on_small_random_problems():
+    rng = np.random.default_rng(0)
+    ids = np.array([0, 1, 2, 3, 10, 11, -1])
+    nxt = tb.next_rows(ids)
+
+    def cost(path, c, s, h):
+        tot = c[0, path[0]]
+        for i in range(1, len(path)):
+            a, b = path[i - 1], path[i]
+            tot += c[i, b] + (0 if nxt[a] == b else h if a == b else s)
+        return tot
+
+    import itertools
+    for _ in range(5):
+        c = rng.uniform(0, 3, (4, len(ids)))
+        got = tb.detail_sources(c, ids, k=len(ids), switch_cost=1.5, hold_cost=0.7, reach=len(ids), beam=len(ids) ** 2)
+        best = min(cost(pth, c, 1.5, 0.7) for pth in itertools.product(range(len(ids)), repeat=4))
+        assert cost(got, c, 1.5, 0.7) == pytest.approx(best)
+
+
+def test_a_run_may_not_continue_into_a_frame_outside_the_reach():
+    costs = np.array([[0.0, 5.0, 5.0], [5.0, 50.0, 0.0]])       # frame 1 of the run is far from the wanted shape
+    ids = np.array([0, 1, 2])
+    assert tb.detail_sources(costs, ids, k=1, switch_cost=100.0, hold_cost=100.0, reach=2).tolist() == [0, 2]
+
+
+def test_bad_costs_are_refused():
+    with pytest.raises(ParameterError, match="pool rows"):
+        tb.detail_sources(np.zeros((3, 4)), np.arange(5))
+    with pytest.raises(ParameterError, match="k ≥ 1"):
+        tb.detail_sources(np.zeros((3, 4)), np.arange(4), k=0)
+
+
+def test_a_switch_is_cross_faded_and_weights_sum_to_one():
+    ids = np.arange(20)
+    sources = np.array([2, 3, 4, 12, 13, 14, 15, 16])         # a switch at output frame 3
+    plan = tb.crossfade_plan(sources, ids, fade=3)
+    assert plan[:3] == [[(2, 1.0)], [(3, 1.0)], [(4, 1.0)]]
+    assert [r for r, _ in plan[3]] == [5, 12] and [r for r, _ in plan[5]] == [7, 14]
+    old = [dict(p).get(r, 0.0) for p, r in zip(plan[3:6], (5, 6, 7))]
+    assert old == pytest.approx([0.75, 0.5, 0.25])               # falls linearly
+    assert plan[6] == [(15, 1.0)]
+    assert all(sum(w for _, w in p) == pytest.approx(1.0) for p in plan)
+
+
+def blobs(size=96, shift=(0.0, 0.0), seed=1):
+    """A textured test image: smooth blobs plus fine stripes, translated by ``shift`` (x, y) px."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:size, 0:size].astype(np.float64)
+    x, y = x - shift[0], y - shift[1]
+    img = 128 + 40 * np.sin(x / 7.0) * np.cos(y / 9.0) + 30 * np.sin(0.9 * x + 0.5 * y)
+    for cx, cy in rng.uniform(20, size - 20, (4, 2)):
+        img += 40 * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / 60)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_the_landmark_field_moves_points_onto_their_targets_and_leaves_far_pixels():
+    src = np.array([[40.0, 40.0], [56.0, 40.0]])
+    dst = src + [0.0, 5.0]                                      # both points 5 px down
+    mx, my = tb.displacement_field(src, dst, 96, sigma=8.0, points=np.arange(2))
+    assert my[45, 40] == pytest.approx(40.0, abs=0.6) and mx[45, 40] == pytest.approx(40.0, abs=0.3)
+    assert my[90, 5] == pytest.approx(90.0, abs=0.05) and mx[90, 5] == pytest.approx(5.0, abs=0.05)
+
+
+def test_aligned_i420_candidates_move_like_rgb_ones():
+    rgb = np.dstack([blobs(), blobs(seed=2), blobs(seed=3)])
+    i420 = cv2.cvtColor(rgb, cv2.COLOR_RGB2YUV_I420)
+    src = np.array([[[40.0, 50.0], [56.0, 50.0]]])
+    dst = src[0] + [3.0, 4.0]
+    a = tb.align_candidates(rgb[None], src, dst, 10.0)[0]
+    b = cv2.cvtColor(tb.align_candidates(i420[None], src, dst, 10.0)[0], cv2.COLOR_YUV2RGB_I420)
+    ref = cv2.cvtColor(cv2.cvtColor(a, cv2.COLOR_RGB2YUV_I420), cv2.COLOR_YUV2RGB_I420)
+    assert np.abs(b.astype(int) - ref.astype(int))[20:76, 20:76].mean() < 3.0
+    assert np.abs(a.astype(int) - rgb.astype(int))[40:60, 40:60].mean() > 5      # it did move
+
+
+def test_two_band_keeps_the_medians_low_band_and_takes_the_sources_detail():
+    sharp = np.dstack([blobs()] * 3)
+    soft = cv2.GaussianBlur(sharp, (0, 0), 3.0)
+    lm = np.tile([48.0, 48.0], (68, 1)) + np.random.default_rng(0).normal(0, 10, (68, 2))
+    out = tb.two_band(soft, lm, [(sharp, lm, 1.0)], band_sigma=2.0, warp_sigma=8.0)
+    low_soft, _ = tb.split_bands(soft, 2.0)
+    _, high_sharp = tb.split_bands(sharp, 2.0)
+    assert np.abs(out - (low_soft + high_sharp))[8:-8, 8:-8].mean() < 1.5       # aligned already: flow ≈ 0
+    box = (8, 8, 88, 88)
+    assert detail_energy(out[None, ..., 0], box, 1.0) > 3 * detail_energy(soft[None, ..., 0], box, 1.0)
+
+
+def test_detail_measures_see_detail_and_not_motion():
+    box = (20, 20, 76, 76)
+    moving = np.stack([blobs(shift=(0.7 * t, 0.4 * t)) for t in range(6)])
+    noisy = np.stack([np.clip(blobs().astype(int) + np.random.default_rng(t).normal(0, 6, (96, 96)), 0, 255)
+                      .astype(np.uint8) for t in range(6)])
+    soft = np.stack([cv2.GaussianBlur(f, (0, 0), 2.0) for f in moving])
+    assert detail_flicker(moving, box, 1.5) < 0.5 * detail_flicker(noisy, box, 1.5)     # motion is not flicker
+    assert detail_energy(soft, box, 1.5) < 0.3 * detail_energy(moving, box, 1.5)         # blur loses the band
