@@ -90,9 +90,11 @@ def client_for(cluster):
     security_for(cluster)               # validates the files named in cluster.security
     n = cluster.n_workers or os.cpu_count() or 1
     log.info("starting LocalCluster with %d worker processes", n)
+    # dashboard_address ":0": the scheduler's HTTP server (health routes; no dashboard without bokeh)
+    # takes a free port, so two clusters at once (two test processes, two users) never fight over 8787
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                       memory_limit=cluster.memory_limit,
-                      dashboard_address=None, silence_logs=logging.WARNING) as lc, Client(lc) as c:
+                      dashboard_address=":0", silence_logs=logging.WARNING) as lc, Client(lc) as c:
         _OWN_CLUSTERS.add(lc.scheduler_address)
         try:
             yield c

@@ -62,7 +62,7 @@ class Synthesize(Section):
         metadata={"help": "median: §3.2 (weighted median, teeth proxy, unsharp) | aligned: candidates warped onto the lips first | two_band: median + a real frame's detail"})
     detail_candidates: int = field(default=8,
         metadata={"help": "two_band: nearest candidates per frame the Viterbi picks the detail source from", "min": 1})
-    detail_switch_cost: float = field(default=2.0,
+    detail_switch_cost: float = field(default=6.0,
         metadata={"help": "two_band: Viterbi cost of switching to another source (units: lip-shape distance / σ²)", "min": 0.0})
     detail_hold_cost: float = field(default=1.0,
         metadata={"help": "two_band: Viterbi cost of holding one source frame (moving to its next frame costs 0)", "min": 0.0})

@@ -39,7 +39,7 @@ def next_rows(frame_ids: np.ndarray) -> np.ndarray:
     return np.array([row_of.get(int(f) + 1, -1) if f >= 0 else -1 for f in frame_ids], np.int64)
 
 
-def detail_sources(costs: np.ndarray, frame_ids: np.ndarray, k: int = 8, switch_cost: float = 2.0,
+def detail_sources(costs: np.ndarray, frame_ids: np.ndarray, k: int = 8, switch_cost: float = 6.0,
                    hold_cost: float = 1.0, reach: int = 50, beam: int | None = None) -> np.ndarray:
     """The Viterbi path of detail sources (a beam search over pool rows).
 

@@ -14,9 +14,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
-import os
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -249,20 +247,15 @@ def encoder_settings(features: str, whisper_path: str | None) -> dict | None:
 
 
 def write_outputs(metrics: dict, curves: dict, p: Train) -> None:
-    Path(p.metrics).parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.metrics + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(metrics, f, indent=2)
-    os.replace(tmp, p.metrics)
-    Path(p.plots).parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.plots + ".tmp"
-    with open(tmp, "w", newline="") as f:
+    """The metrics json and the loss-curve csv, each replaced whole (``atomic_output``)."""
+    with atomic_output(p.metrics, suffix=".json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=2))
+    with atomic_output(p.plots, suffix=".csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["model", "step", "epoch", "train_loss", "val_loss"])
         for name, hist in curves.items():
             for h in hist:
                 w.writerow([name, h["step"], f"{h['epoch']:.3f}", f"{h['train_loss']:.5f}", f"{h['val_loss']:.5f}"])
-    os.replace(tmp, p.plots)
 
 
 def feature_store(params: Params) -> dict[str, str | None]:
