@@ -48,7 +48,7 @@ from stages.composite import composite  # noqa: E402
 from stages.synthesize import synthesize  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
-PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weighted_median", "teeth",
+PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weighted_median", "teeth", "detail",
           "decode", "retime_flow", "flow", "render_back", "blend", "check", "encode"]
 
 
@@ -128,9 +128,15 @@ def write_results(rows: dict, path: Path) -> None:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     key = cpu_features()
     old = json.loads(path.read_text()) if path.is_file() else {}
-    old.setdefault("by_cpu", {})[key] = dict(commit=commit, date=datetime.datetime.now().isoformat(timespec="minutes"),
-                                             machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
-                                             rows=rows)
+    date = datetime.datetime.now().isoformat(timespec="minutes")
+    for r in rows.values():
+        r.update(commit=commit, date=date)
+    entry = old.setdefault("by_cpu", {}).setdefault(key, dict(rows={}))
+    for name, r in entry["rows"].items():                 # rows of earlier runs keep their own commit and date
+        r.setdefault("commit", entry.get("commit"))
+        r.setdefault("date", entry.get("date"))
+    entry.update(commit=commit, date=date, machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores")
+    entry["rows"].update(rows)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(old, indent=1))
     print(f"wrote {path} ({key} row)")
@@ -146,14 +152,17 @@ def write_page(path: Path, page: Path = ROOT / "docs" / "synthesis_speed.md") ->
              "`python bench/synthesize.py --repeats 3`: synthesize + composite of 32 s of speech into a GRID "
              "validation clip, obama_08 (720p) and the same upscaled to 1080p; ms/frame per phase (thread time: "
              "two threads, so phases add up to more than the wall time), medians over repeats; frames/s is wall "
-             "time on 2 cores. Goals (issue 33): GRID ≥ 60, 720p ≥ 30, 1080p ≥ 20 frames/s.", ""]
+             "time on 2 cores. Goals (issue 33): GRID ≥ 60, 720p ≥ 30, 1080p ≥ 20 frames/s. Columns named with a "
+             "method (`two_band`) ran with that `synthesize.detail` (`--detail`); the others with params.yaml's.", ""]
     for cpu, entry in res["by_cpu"].items():
         rows = entry["rows"]
-        lines += [f"## {cpu} ({entry['machine']}, commit {entry['commit']}, {entry['date']})", "",
+        lines += [f"## {cpu} ({entry['machine']})", "",
                   "| phase | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]
         for k in PHASES:
             lines.append(f"| {k} | " + " | ".join(f"{r['ms_per_frame'].get(k, 0):.1f}" for r in rows.values()) + " |")
-        lines += ["| **frames/s (wall)** | " + " | ".join(f"**{r['frames_per_s']:.1f}**" for r in rows.values()) + " |", ""]
+        lines += ["| **frames/s (wall)** | " + " | ".join(f"**{r['frames_per_s']:.1f}**" for r in rows.values()) + " |",
+                  "| measured | " + " | ".join(f"{r.get('commit', entry['commit'])}, {str(r.get('date', entry['date']))[:10]}"
+                                           for r in rows.values()) + " |", ""]
     page.write_text("\n".join(lines) + "\n")
     print(f"wrote {page}")
 
@@ -167,6 +176,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "synthesize_speed.json",
                     help="results file; one entry per CPU feature level (AVX-512 / AVX2 / baseline)")
     ap.add_argument("--page-only", action="store_true", help="only rewrite docs/synthesis_speed.md from --out")
+    ap.add_argument("--detail", choices=("median", "aligned", "two_band"), default=None,
+                    help="synthesize.detail for every row (rows are then named e.g. 'grid two_band')")
     a = ap.parse_args()
     if a.page_only:
         return write_page(a.out)
@@ -177,6 +188,8 @@ def main() -> None:
                  "lipsynth.landmarks", "lipsynth.frontalize", "lipsynth.parallel"):
         logging.getLogger(name).setLevel(logging.WARNING)
     project = load_params(ROOT / "params.yaml")
+    if a.detail:
+        project.synthesize.detail = a.detail
     work = ROOT / "bench" / "results" / "synthesize"
     work.mkdir(parents=True, exist_ok=True)
     a.audio = a.audio or str(long_speech(work / "speech_32s.wav"))
@@ -190,7 +203,7 @@ def main() -> None:
         p.synthesize = dataclasses.replace(project.synthesize, audio=a.audio, target=entry["name"],
                                            model=corpus.train.out)
         p.composite = dataclasses.replace(project.composite, diagnostic=False)
-        rows["grid"] = report(f"GRID {entry['width']}×{entry['height']} (target {entry['name']}, pool {p.synthesize.pool_max} "
+        rows["grid" + (f" {a.detail}" if a.detail else "")] = report(f"GRID {entry['width']}×{entry['height']} (target {entry['name']}, pool {p.synthesize.pool_max} "
                f"frames)", [one_run(p, stores, entry, entry["path"], work) for _ in range(a.repeats)])
 
     for size in ("720p", "1080p"):
@@ -205,10 +218,10 @@ def main() -> None:
         p = preprocess_target(target, base, ROOT / "bench" / "results" / "cache")
         stores = synthesize.open_stores(p, pca=False)
         entry = stores["frontalize"].attrs["videos"][0]
-        p.synthesize = dataclasses.replace(p.synthesize, audio=a.audio, target=str(target),
+        p.synthesize = dataclasses.replace(project.synthesize, audio=a.audio, target=str(target),
                                            model=load_params(a.grid_params).train.out)
         p.composite = dataclasses.replace(p.composite, diagnostic=False)
-        rows[size] = report(f"{size} {entry['width']}×{entry['height']} (target {target.stem}, its own {entry['n_frames']} frames)",
+        rows[size + (f" {a.detail}" if a.detail else "")] = report(f"{size} {entry['width']}×{entry['height']} (target {target.stem}, its own {entry['n_frames']} frames)",
                [one_run(p, stores, entry, str(target), work) for _ in range(a.repeats)])
     write_results(rows, a.out)
 
