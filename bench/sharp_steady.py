@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import re
 import subprocess
@@ -196,7 +197,7 @@ def main() -> None:
         return
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     summary = dict(commit=commit, date=time.strftime("%Y-%m-%d"), machine=f"{platform.processor() or platform.machine()}, "
-                   f"{__import__('os').cpu_count()} cores", rows=rows)
+                   f"{os.cpu_count()} cores", rows=rows)
     (ROOT / "results").mkdir(exist_ok=True)
     (ROOT / "results" / "sharp_steady.json").write_text(json.dumps(summary, indent=1) + "\n")
     plot(rows, ROOT / "docs" / "img" / "sharp_steady.png")

@@ -157,23 +157,26 @@ def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray,
     return mapping, repeated
 
 
-NOSE = np.r_[27:36]                               # held still while the lips are aligned
+NOSE = np.r_[27:36]                               # anchored (at the nearest candidate's) while the lips are aligned
 ALIGNED = np.r_[LIP_POINTS, NOSE]
 
 
-def detail_plan(lips: np.ndarray, shapes: np.ndarray, pool: np.ndarray, p: Synthesize) -> list:
+def detail_plan(lips: np.ndarray, shapes: np.ndarray, pool: np.ndarray, p: Synthesize) -> tuple[list, list]:
     """``synthesize.detail: two_band``: per output frame, the real frames whose detail it shows and
     their weights (``two_band.crossfade_plan`` of the Viterbi path, ``two_band.detail_sources``,
-    whose unary cost is a pool frame's lip-shape distance / (2σ²) of that output frame, Eq. 11)."""
+    whose unary cost is a pool frame's lip-shape distance / (2σ²) of that output frame, Eq. 11),
+    and each frame's ``candidate_search`` (the texture reuses it)."""
     costs = np.zeros((len(lips), len(shapes)), np.float32)
+    searches = []
     for i, lip in enumerate(lips):
-        idx, d2 = tx.select_candidates(lip, shapes, p.n)
-        costs[i] = d2 / (2 * tx.solve_sigma(d2, idx, p.alpha) ** 2)
+        s = tx.candidate_search(lip, shapes, p.n, p.alpha)
+        costs[i] = s.pop("all_d2") / (2 * s["sigma"] ** 2)
+        searches.append(s)
     sources = two_band.detail_sources(costs, pool, p.detail_candidates, p.detail_switch_cost, p.detail_hold_cost,
                                        reach=p.n)
     runs = 1 + int(np.sum(np.diff(pool[sources]) != 1))
     log.info("two-band detail: %d output frames from %d runs of consecutive real frames", len(lips), runs)
-    return two_band.crossfade_plan(sources, pool, p.detail_fade_frames)
+    return two_band.crossfade_plan(sources, pool, p.detail_fade_frames), searches
 
 
 def open_stores(params: Params, pca: bool = True) -> dict:
@@ -257,10 +260,10 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
                                      feather_px=px * p.teeth_feather_px)
     detail = dict(s_max=p.teeth_s_max, v_min=p.teeth_v_min, feather_px=px * p.teeth_feather_px,
                   unsharp_sigma=px * p.unsharp_sigma, unsharp_amount=p.unsharp_amount)
-    plan = None
+    plan = searches = None
     if p.detail == "two_band":            # real detail replaces the teeth proxy and the unsharp mask
         proxies, detail["unsharp_amount"] = None, 0.0
-        plan = detail_plan(lips, shapes, pool, p)
+        plan, searches = detail_plan(lips, shapes, pool, p)
     log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
              " (given)" if up is not None or lo is not None else " (automatic)")
     T = pool_tex.shape[2]
@@ -275,7 +278,8 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
         else:                                   # candidates moved onto the wanted lip points first
             get = lambda idx: two_band.align_candidates(                                  # noqa: E731
                 pool_tex[idx], flm[idx][:, ALIGNED], np.concatenate([wanted, flm[idx[0]][NOSE]]), px * p.detail_warp_px)
-        rgb, info = tx.synthesize_texture(lips[i], shapes, get, flm, p.n, p.alpha, proxies, detail)
+        rgb, info = tx.synthesize_texture(lips[i], shapes, get, flm, p.n, p.alpha, proxies, detail,
+                                          search=searches[i] if searches else None)
         if p.detail == "aligned":
             info["landmarks"][LIP_POINTS] = wanted
         if plan is not None:

@@ -193,12 +193,21 @@ def _median_block(x: np.ndarray, lut: np.ndarray) -> np.ndarray:
     return (np.take_along_axis(keys, below[None].astype(np.intp), 0)[0] >> 8).astype(np.uint8)
 
 
+def candidate_search(target_shape: np.ndarray, shapes: np.ndarray, n: int = 50, alpha: float = 0.9) -> dict:
+    """§3.2.1 and Eq. 12 for one frame: indices (n,) nearest first, their squared distances d2 (n,),
+    σ (px) and the achieved share; ``all_d2`` (M,) the distance of every frame (the Viterbi of
+    ``synthesize.detail: two_band`` reads it)."""
+    idx, d2 = select_candidates(target_shape, shapes, n)
+    sigma = solve_sigma(d2, idx, alpha)
+    return dict(indices=idx, d2=d2[idx], sigma=sigma, share=candidate_share(d2, idx, sigma), all_d2=d2)
+
+
 # ----------------------------------------------------------------------------- one frame
 
 def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture: Callable,
                        frontal_landmarks: np.ndarray, n: int = 50,
                        alpha: float = 0.9, proxies: dict | None = None,
-                       params: dict | None = None) -> tuple[np.ndarray, dict]:
+                       params: dict | None = None, search: dict | None = None) -> tuple[np.ndarray, dict]:
     """One output texture from one mouth shape (§3.2): candidates → σ → weights → weighted
     median → teeth enhancement + unsharp masking.
 
@@ -216,6 +225,7 @@ def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture
         unsharp masking only).
     params : overrides of s_max, v_min, feather_px, unsharp_sigma, unsharp_amount
         (sigmas/strength live in ``proxies``).
+    search : this frame's ``candidate_search`` when the caller has it already (it is not repeated).
 
     Returns
     -------
@@ -230,9 +240,9 @@ def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture
         raise ValueError(f"synthesize_texture params: unknown {sorted(unknown)} (sigmas/strength go to prepare_proxies)")
     p.update(params or {})
     t0 = time.perf_counter()
-    idx, d2 = select_candidates(target_shape, shapes, n)
-    sigma = solve_sigma(d2, idx, alpha)
-    w = weights(d2[idx], sigma)
+    s = search if search is not None else candidate_search(target_shape, shapes, n, alpha)
+    idx, sigma = s["indices"], s["sigma"]
+    w = weights(s["d2"], sigma)
     t1 = time.perf_counter()
     median = _rgb(weighted_median(get_texture(idx), w))
     t2 = time.perf_counter()
@@ -240,7 +250,7 @@ def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture
     rgb = apply_teeth_detail(median, lm[48:68], proxies, None, p["s_max"], p["v_min"], p["feather_px"],
                              p["unsharp_sigma"], p["unsharp_amount"])
     t3 = time.perf_counter()
-    info = dict(indices=idx, weights=w, sigma=sigma, share=candidate_share(d2, idx, sigma),
+    info = dict(indices=idx, weights=w, sigma=sigma, share=s["share"],
                 landmarks=lm, lip_points=lm[48:68],
                 seconds=dict(candidate_search=t1 - t0, weighted_median=t2 - t1, teeth=t3 - t2))
     return rgb, info

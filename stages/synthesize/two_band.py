@@ -21,6 +21,8 @@ Texture arrays are (T, T, 3) uint8 RGB in the frontal texture plane; landmarks (
 """
 from __future__ import annotations
 
+import threading
+
 import cv2
 import numpy as np
 
@@ -182,17 +184,14 @@ def align_candidates(textures: np.ndarray, src_points: np.ndarray, dst_points: n
     return out
 
 
-_DIS = {}
+_LOCAL = threading.local()          # one DIS object per thread: it keeps state between calls
 
 
 def _dis() -> cv2.DISOpticalFlow:
-    import threading
-    key = threading.get_ident()                   # one per thread: the object keeps state
-    if key not in _DIS:
-        flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
-        flow.setUseSpatialPropagation(True)
-        _DIS[key] = flow
-    return _DIS[key]
+    if not hasattr(_LOCAL, "dis"):
+        _LOCAL.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
+        _LOCAL.dis.setUseSpatialPropagation(True)
+    return _LOCAL.dis
 
 
 def align_to(candidate: np.ndarray, cand_lm: np.ndarray, target: np.ndarray, target_lm: np.ndarray,
