@@ -1,20 +1,19 @@
 """Speed of audio → video (synthesize + composite), ms/frame per phase, at GRID size, 720p and 1080p.
 
-    python bench/synthesize.py --repeats 3 [--grid-params runs/grid_s1/params.yaml]
+    python bench/synthesize.py --repeats 3                       # the AVX2 row (lipsynth's default everywhere)
+    LIPSYNTH_SIMD=native python bench/synthesize.py --repeats 3  # on an AVX-512 CPU: the AVX-512 row
 
 Writes results/synthesize_speed.json: per CPU feature level (AVX-512 or AVX2, numpy's
-dispatch), the per-phase medians with commit, date and machine.
+dispatch), the per-phase medians with commit, date and machine; and docs/synthesis_speed.md.
 
-GRID size: a validation clip of the preprocessed GRID corpus (``--grid-params``, default
-runs/grid_s1/params.yaml) as target, 32 s of radio speech (../shared/data/hdtf) as audio,
-re-timing on (the 3 s target is extended by ping-pong). 720p: ``obama_08.mp4`` as target
-(preprocessed once into bench/results/cache with a 448 px crop and 192 px texture, as
-``lipsynth speak`` would), the same kind of audio. 1080p: the same clip upscaled to 1920×1080
-(bicubic, once, into bench/results/synthesize; same crop and texture sizes — the face covers
-2.25× the pixels). The model is the GRID model. Preprocessing
-of the target is not timed (it is cached); model loading is (in "prediction"). Run it from the
-GRID corpus's project root: its params' store paths and the video paths its stores record are
-relative to it.
+The path ``lipsynth speak`` runs, with the shipped base model (``--model``) and 32 s of radio
+speech (../shared/data/hdtf), re-timing on. GRID: the GRID s1 clip ``GRID_CLIP`` (the model's
+speaker: the corpus 3D face and the model's candidate bank; the 3 s target is extended by
+ping-pong). 720p: ``obama_08.mp4`` (another person: its own 3D face and mouths; 448 px crop,
+192 px texture). 1080p: the same clip upscaled to 1920×1080 (bicubic, once, into
+bench/results/synthesize; same crop and texture sizes — the face covers 2.25× the pixels).
+Preprocessing of the target is not timed (it is cached in bench/results/cache); model loading
+and mouth prediction are (in "prediction").
 
 Phases: prediction (audio → MFCC → LSTM → shapes; includes torch's first-call set-up),
 retiming, candidate_pool (reading the pool's textures), candidate_search, weighted_median,
@@ -40,14 +39,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lipsynth.target import preprocess_target  # noqa: E402
-from pipeline.params import Params, load_params  # noqa: E402
+from lipsynth import speak  # noqa: E402
+from pipeline.params import load_params  # noqa: E402
 from pipeline.io.runner import setup_logging  # noqa: E402
 from pipeline.io.store import open_group  # noqa: E402
 from stages.composite import composite  # noqa: E402
 from stages.synthesize import synthesize  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
+GRID_CLIP = "bbaf2n.mp4"      # a GRID s1 clip: the base model's speaker (its candidate bank joins the pool)
 PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weighted_median", "teeth", "detail",
           "decode", "retime_flow", "flow", "render_back", "blend", "check", "encode"]
 
@@ -86,12 +86,14 @@ def upscaled(video: Path, out: Path, size: tuple[int, int]) -> Path:
     return out
 
 
-def one_run(p: Params, stores: dict, entry: dict, video: str, work: Path) -> tuple[dict, float, int]:
-    """Synthesize + composite ``entry`` (source video ``video``) saying ``p.synthesize.audio``."""
+def one_run(prep, audio: str, target: str, work: Path) -> tuple[dict, float, int]:
+    """Synthesize + composite (``lipsynth speak`` after its preparation): ``prep`` saying ``audio`` into
+    ``target``; mouth prediction is timed (in "prediction")."""
     store = work / "synthesize.zarr"
+    p = prep.params
     t0 = time.perf_counter()
-    ms = synthesize.run(p, str(store), stores, entry)
-    ms.update(composite.run(p, str(store), str(work / "out.mp4"), p.frontalize.out, video, p.synthesize.audio))
+    ms = synthesize.run(p, str(store), prep.stores, prep.entry)
+    ms.update(composite.run(p, str(store), str(work / "out.mp4"), p.frontalize.out, target, audio))
     wall = time.perf_counter() - t0
     n = open_group(str(store)).attrs["n_frames"]
     shutil.rmtree(store, ignore_errors=True)
@@ -170,7 +172,7 @@ def write_page(path: Path, page: Path = ROOT / "docs" / "synthesis_speed.md") ->
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--grid-params", default="runs/grid_s1/params.yaml", help="params of the preprocessed GRID corpus")
+    ap.add_argument("--model", default=str(ROOT / "models" / "base"), help="model folder (default: the shipped base model)")
     ap.add_argument("--audio", default=None, help="speech file (default: 32 s of radio speech, see long_speech)")
     ap.add_argument("--only", choices=["grid", "720p", "1080p"], default=None)
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "synthesize_speed.json",
@@ -194,35 +196,25 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     a.audio = a.audio or str(long_speech(work / "speech_32s.wav"))
 
-    if a.only in (None, "grid"):
-        corpus = load_params(a.grid_params)
-        stores = synthesize.open_stores(corpus)
-        entry = sorted([v for v in stores["frontalize"].attrs["videos"] if v["split"] == "val"
-                        and not v.get("excluded")], key=lambda v: v["name"])[0]
-        p = copy.deepcopy(corpus)
-        p.synthesize = dataclasses.replace(project.synthesize, audio=a.audio, target=entry["name"],
-                                           model=corpus.train.out)
-        p.composite = dataclasses.replace(project.composite, diagnostic=False)
-        rows["grid" + (f" {a.detail}" if a.detail else "")] = report(f"GRID {entry['width']}×{entry['height']} (target {entry['name']}, pool {p.synthesize.pool_max} "
-               f"frames)", [one_run(p, stores, entry, entry["path"], work) for _ in range(a.repeats)])
-
-    for size in ("720p", "1080p"):
+    cache = ROOT / "bench" / "results" / "cache"
+    for size in ("grid", "720p", "1080p"):
         if a.only not in (None, size):
             continue
-        target = SHARED / "obama" / "obama_08.mp4"
-        if size == "1080p":
-            target = upscaled(target, work / "obama_08_1080p.mp4", (1920, 1080))
         base = copy.deepcopy(project)
-        base.ingest.crop_size = 448
-        base.frontalize.texture_size = 192
-        p = preprocess_target(target, base, ROOT / "bench" / "results" / "cache")
-        stores = synthesize.open_stores(p, pca=False)
-        entry = stores["frontalize"].attrs["videos"][0]
-        p.synthesize = dataclasses.replace(project.synthesize, audio=a.audio, target=str(target),
-                                           model=load_params(a.grid_params).train.out)
-        p.composite = dataclasses.replace(p.composite, diagnostic=False)
-        rows[size + (f" {a.detail}" if a.detail else "")] = report(f"{size} {entry['width']}×{entry['height']} (target {target.stem}, its own {entry['n_frames']} frames)",
-               [one_run(p, stores, entry, str(target), work) for _ in range(a.repeats)])
+        base.composite.diagnostic = False
+        if size == "grid":
+            target = SHARED / "grid_s1" / "video" / GRID_CLIP
+        else:
+            target = SHARED / "obama" / "obama_08.mp4"
+            base.ingest.crop_size = 448
+            base.frontalize.texture_size = 192
+            if size == "1080p":
+                target = upscaled(target, work / "obama_08_1080p.mp4", (1920, 1080))
+        prep = speak.prepare(a.audio, str(target), base, a.model, cache=cache)
+        e = prep.entry
+        rows[size + (f" {a.detail}" if a.detail else "")] = report(
+            f"{size} {e['width']}×{e['height']} (target {target.name}, {e['n_frames']} frames; {prep.report['path']})",
+            [one_run(prep, a.audio, str(target), work) for _ in range(a.repeats)])
     write_results(rows, a.out)
 
 if __name__ == "__main__":

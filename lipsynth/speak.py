@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import logging
 import shutil
 import tempfile
@@ -196,19 +197,48 @@ def same_window(a: dict, b: dict) -> bool:
     return a["size"] == b["size"] and all(abs(a[k] - b[k]) <= 1e-9 * max(1.0, abs(a[k])) for k in ("x0", "y0", "mm_per_px"))
 
 
+@dataclasses.dataclass
+class Prepared:
+    """What synthesis needs, once the target is preprocessed and the speaker known: the run's params, the
+    target's stores (with the model's candidate bank for the model's own speaker), the target's index entry,
+    the predicted mouth (None: predict in synthesis) and the report so far."""
+    params: Params
+    stores: dict
+    entry: dict
+    mouth: dict | None
+    report: dict
+
+
 def speak(audio: str, target: str, out: str, params: Params, model: str | None = None, retime: bool = True,
           cache: Path | None = None, diagnostic: bool = False, emotion=None) -> dict:
     """Write ``out`` (MP4): the speaker of ``target`` saying ``audio``.
 
     Returns ms/frame per phase and a ``report`` (identity distance, path taken, 3D fit, self-check).
     """
-    for path, what in ((audio, "audio"), (target, "target video")):
-        if not Path(path).is_file():
-            raise BadInputError(path, f"{what} file not found")
     if not str(out).lower().endswith(".mp4"):
         raise ParameterError(f"--out {out}: expected an .mp4 file name")
     if not Path(out).absolute().parent.is_dir():
         raise ParameterError(f"--out {out}: the folder {Path(out).absolute().parent} does not exist")
+    prep = prepare(audio, target, params, model, retime, cache, diagnostic, emotion)
+    work = Path(tempfile.mkdtemp(prefix=".lipsynth-speak-", dir=Path(out).absolute().parent))
+    try:
+        ms = synthesize.run(prep.params, str(work / "synthesize.zarr"), prep.stores, prep.entry, mouth=prep.mouth)
+        ms.update(composite.run(prep.params, str(work / "synthesize.zarr"), out, prep.params.frontalize.out,
+                                str(target), str(audio)))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    prep.report["self_check"] = ms.pop("self_check", None)
+    ms["report"] = prep.report
+    return ms
+
+
+def prepare(audio: str, target: str, params: Params, model: str | None = None, retime: bool = True,
+            cache: Path | None = None, diagnostic: bool = False, emotion=None) -> Prepared:
+    """Check the inputs, preprocess ``target`` (cached), decide whose mouths to use and predict the mouth
+    shapes of ``audio`` (in a thread, while the workers preprocess): everything of ``speak`` before synthesis."""
+    for path, what in ((audio, "audio"), (target, "target video")):
+        if not Path(path).is_file():
+            raise BadInputError(path, f"{what} file not found")
     model = model or params.synthesize.model
     samples = load_audio(audio)                # a bad audio file fails now, not after preprocessing,
     fps = probe_video(str(target), params.ingest, require_audio=False)["fps"]   # so does a target failing header checks
@@ -260,18 +290,9 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
                             "speak.min_mouth_shapes=%d): mouths will repeat and miss shapes — a longer target video "
                             "of this person helps", target, n_shapes, len(own), p.speak.min_mouth_shapes)
         log.info("speak: %s", report["path"])
-        work = Path(tempfile.mkdtemp(prefix=".lipsynth-speak-", dir=Path(out).absolute().parent))
-        try:
-            ms = synthesize.run(p, str(work / "synthesize.zarr"), stores, entry,
-                                mouth=mouth.result() if entry["fps"] == fps else None)
-            ms.update(composite.run(p, str(work / "synthesize.zarr"), out, p.frontalize.out, str(target), str(audio)))
-        finally:
-            shutil.rmtree(work, ignore_errors=True)
-        report["self_check"] = ms.pop("self_check", None)
-        ms["report"] = report
+        return Prepared(p, stores, entry, mouth.result() if entry["fps"] == fps else None, report)
     finally:
         predicting.shutdown(wait=False, cancel_futures=True)
-    return ms
 
 
 def main(argv=None) -> int:

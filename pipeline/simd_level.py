@@ -1,7 +1,7 @@
 """One SIMD level for every numeric library, so a stage writes the same bytes on any x86-64 CPU with AVX2.
 
-NumPy, OpenCV, PyTorch (its ATen kernels, MKL and oneDNN), CTranslate2 and OpenBLAS each pick their kernels at
-run time from what the CPU offers. Kernels of different widths add floats in different orders, so a CPU with
+NumPy, OpenCV, PyTorch (its ATen kernels, MKL and oneDNN), CTranslate2, OpenBLAS and x264 each pick their
+kernels at run time from what the CPU offers. Kernels of different widths add floats in different orders, so a CPU with
 AVX-512 would write outputs that differ in the last bits from an AVX2 CPU's — and training amplifies those bits
 until every downstream DVC hash differs. On a CPU with AVX-512 this caps each library at the AVX2 level
 (x86-64-v3), the level the committed ``dvc.lock`` is made on. It runs when ``pipeline`` is first imported, before
@@ -23,6 +23,10 @@ AVX2_CAP = {
     "ONEDNN_MAX_CPU_ISA": "AVX2",              # oneDNN (PyTorch's convolutions)
     "CT2_FORCE_CPU_ISA": "AVX2",               # CTranslate2 (the Whisper encoder)
     "OPENBLAS_CORETYPE": "Haswell",            # OpenBLAS inside NumPy and SciPy wheels: its AVX2 kernels
+    # x264 (inside PyAV's FFmpeg) reads no variable: our writers pass this to its ``asm`` option (x264_params).
+    # Its AVX-512 kernels change the bitstream (measured: the demo's synthetic speaker clips differ from the
+    # AVX2 machine's unless x264 is held at this list, what it detects on an AVX2 CPU).
+    "LIPSYNTH_X264_ASM": "MMX2,SSE2Fast,SSSE3,SSE4.2,AVX,FMA3,BMI2,AVX2",
 }
 
 
@@ -49,7 +53,20 @@ def cap_for(flags: set[str]) -> dict[str, str]:
 
 
 def pin_avx2(environ=os.environ, flags: set[str] | None = None) -> dict[str, str]:
-    """Set the AVX2 cap in ``environ`` (keeping any value already there); the variables it set."""
+    """Set the AVX2 cap in ``environ`` (keeping any value already there); the variables it set.
+
+    ``LIPSYNTH_SIMD=native`` in ``environ`` lifts the cap: every library uses all the CPU offers (faster on
+    AVX-512; outputs then differ in the last bits from the committed ``dvc.lock``)."""
+    if environ.get("LIPSYNTH_SIMD", "") == "native":
+        return {}
     added = {k: v for k, v in cap_for(cpu_flags() if flags is None else flags).items() if k not in environ}
     environ.update(added)
     return added
+
+
+def x264_params(environ=os.environ) -> dict[str, str]:
+    """libx264 options holding x264 at the capped instruction sets (``LIPSYNTH_X264_ASM``; {} when unset:
+    x264 then uses what it detects). Its kernels are not all bit-exact across sets, so without this an
+    AVX-512 CPU writes other H.264 bytes than an AVX2 one."""
+    asm = environ.get("LIPSYNTH_X264_ASM", "")
+    return {"x264-params": f"asm={asm}"} if asm and asm != "auto" else {}

@@ -3,7 +3,7 @@ import ast
 import subprocess
 import sys
 
-from pipeline.simd_level import AVX2_CAP, cap_for, cpu_flags, pin_avx2
+from pipeline.simd_level import AVX2_CAP, cap_for, cpu_flags, pin_avx2, x264_params
 from tests.conftest import ROOT
 
 SKX = {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
@@ -26,6 +26,11 @@ def test_a_value_the_user_set_is_kept():
     added = pin_avx2(env, SKX)
     assert env["ATEN_CPU_CAPABILITY"] == "default" and "ATEN_CPU_CAPABILITY" not in added
     assert env["MKL_CBWR"] == "AVX2"
+
+
+def test_native_lifts_the_cap():
+    env = {"LIPSYNTH_SIMD": "native"}
+    assert pin_avx2(env, SKX) == {} and env == {"LIPSYNTH_SIMD": "native"}
 
 
 def test_cpu_flags_reads_the_first_processor(tmp_path):
@@ -51,3 +56,28 @@ def test_a_stage_module_pins_before_numpy_loads():
         r = subprocess.run([sys.executable, "-c", probe.format(module=module)], cwd=ROOT, capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
         assert ast.literal_eval(r.stdout.strip())[0] == "pipeline", (module, r.stdout)
+
+
+def test_x264_is_held_at_the_capped_instruction_sets(tmp_path):
+    """The writers pass LIPSYNTH_X264_ASM to x264's ``asm`` option; x264 accepts the cap's list and then uses
+    no AVX-512 kernel (its log names what it uses)."""
+    import av
+    import av.logging
+    import numpy as np
+    assert x264_params({"LIPSYNTH_X264_ASM": "SSE2,AVX2"}) == {"x264-params": "asm=SSE2,AVX2"}
+    assert x264_params({}) == {} and x264_params({"LIPSYNTH_X264_ASM": "auto"}) == {}
+    options = x264_params({"LIPSYNTH_X264_ASM": AVX2_CAP["LIPSYNTH_X264_ASM"]})
+    assert cpu_flags() >= {"avx2", "fma", "bmi2"}, "the cap's list names AVX2: this test needs an AVX2 CPU"
+    av.logging.set_level(av.logging.VERBOSE)
+    try:
+        with av.logging.Capture() as logs:
+            with av.open(str(tmp_path / "x.mp4"), "w") as c:
+                s = c.add_stream("libx264", rate=25, options=options)
+                s.width, s.height, s.pix_fmt = 64, 64, "yuv420p"
+                for p in s.encode(av.VideoFrame.from_ndarray(np.zeros((64, 64, 3), np.uint8), format="rgb24")):
+                    c.mux(p)
+                c.mux(s.encode())
+    finally:
+        av.logging.set_level(None)
+    used = [m for _, name, m in logs if name == "libx264" and "cpu capabilities" in m]
+    assert len(used) == 1 and "AVX2" in used[0] and "AVX512" not in used[0], used

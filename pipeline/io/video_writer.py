@@ -8,6 +8,8 @@ import av
 import cv2
 import numpy as np
 
+from pipeline.simd_level import x264_params
+
 
 def _rate(fps: float) -> Fraction:
     return Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-3 else Fraction(fps).limit_denominator(1001)
@@ -28,7 +30,8 @@ class VideoWriter:
         self.path = str(path)
         self.c = av.open(self.path, "w")
         self.v = self.c.add_stream("libx264", rate=_rate(fps),
-                                   options={"crf": str(crf), "preset": preset, "threads": str(int(threads))})
+                                   options={"crf": str(crf), "preset": preset, "threads": str(int(threads)),
+                                            **x264_params()})
         self.v.pix_fmt = "yuv420p"
         self.a = None
         if audio is not None:

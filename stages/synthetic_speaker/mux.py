@@ -7,6 +7,8 @@ import av
 import av.codec.context
 import numpy as np
 
+from pipeline.simd_level import x264_params
+
 VIDEO_OPTIONS = {"crf": "18", "preset": "medium", "threads": "1"}
 AUDIO_BIT_RATE = 64000
 AAC_SAMPLE_RATES = (8000, 11025, 12000, 16000, 22050, 24000, 32000, 44100, 48000)
@@ -27,7 +29,7 @@ def write_mp4(path: Path, frames, audio: np.ndarray, fps: int, sample_rate: int,
     fps, sample_rate, width, height : int
     """
     with av.open(str(path), mode="w", format="mp4", options={"fflags": "+bitexact"}) as container:
-        video = container.add_stream("libx264", rate=fps, options=dict(VIDEO_OPTIONS))
+        video = container.add_stream("libx264", rate=fps, options=dict(VIDEO_OPTIONS, **x264_params()))
         video.width, video.height, video.pix_fmt = width, height, "yuv420p"
         video.codec_context.thread_count = 1
         video.codec_context.flags |= av.codec.context.Flags.bitexact
