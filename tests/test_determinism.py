@@ -4,30 +4,41 @@ another folder, on a loaded machine, gives the committed dvc.lock's hashes is ch
 import pytest
 import yaml
 
+from pipeline.simd_level import AVX2_CAP, AVX512_SKX, cpu_flags
 from tests.helpers import copy_project, dvc
 
 def lowest_dispatch() -> dict:
     """Environment turning off every run-time SIMD level this CPU has above the x86-64-v2 baseline, in NumPy
-    (its X86_V3 / X86_V4 dispatch groups) and OpenCV (AVX, AVX2, AVX-512): what an older CPU would run."""
+    (its X86_V3 / X86_V4 dispatch groups) and OpenCV (AVX, AVX2, AVX-512): what an older CPU would run. Read
+    from the CPU's flags and OpenCV's dispatch list, not from what this (capped) process runs."""
     import cv2
-    from numpy._core._multiarray_umath import __cpu_features__ as npy
-    numpy_off = [g for g in ("X86_V4", "X86_V3") if npy.get(g)]
-    # e.g. "SSE SSE2 SSE3 *SSE4.1 *SSE4.2 *AVX *FP16 *AVX2 *AVX512-SKX?": * = dispatched, ? = not on this CPU
-    dispatched = [t[1:].replace("-", "_") for t in cv2.getCPUFeaturesLine().split() if t.startswith("*") and "?" not in t]
-    cv_off = [t for t in dispatched if t.startswith(("AVX", "FP16"))]
+    flags = cpu_flags()
+    numpy_off = [g for g, needs in (("X86_V4", AVX512_SKX), ("X86_V3", {"avx2", "fma", "bmi2"})) if needs <= flags]
+    # e.g. "SSE SSE2 SSE3 *SSE4.1 *SSE4.2 *AVX *FP16 *AVX2 *AVX512-SKX?": * = dispatched, ? = off (absent or capped)
+    dispatched = [t[1:].rstrip("?").replace("-", "_") for t in cv2.getCPUFeaturesLine().split() if t.startswith("*")]
+    cv_off = [t for t in dispatched if t.startswith(("AVX", "FP16")) and (t != "AVX512_SKX" or AVX512_SKX <= flags)]
     return {"NPY_DISABLE_CPU_FEATURES": " ".join(numpy_off), "OPENCV_CPU_DISABLE": ",".join(cv_off)}
+
+
+def highest_dispatch() -> dict:
+    """Environment with the AVX2 cap lifted (NumPy and OpenCV at all the CPU offers, AVX-512 included), x264
+    alone held at its AVX2 sets: its kernels are not bit-exact across sets, so the cap keeps it there on
+    every CPU with AVX-512."""
+    return {"LIPSYNTH_SIMD": "native", "NPY_DISABLE_CPU_FEATURES": "", "OPENCV_CPU_DISABLE": "",
+            "LIPSYNTH_X264_ASM": AVX2_CAP["LIPSYNTH_X264_ASM"] if AVX512_SKX <= cpu_flags() else ""}
 
 
 @pytest.mark.slow
 def test_first_stages_are_the_same_bytes_with_the_highest_and_the_lowest_simd_dispatch(tmp_path):
-    """synthetic_speaker → ingest → landmarks run twice: with everything this CPU offers and with NumPy's and
-    OpenCV's run-time dispatch turned down to the baseline; every output hash is the same. (Before the
+    """synthetic_speaker → ingest → landmarks run twice: with everything this CPU offers (the AVX2 cap of
+    ``pipeline.simd_level`` lifted) and with NumPy's and OpenCV's run-time dispatch turned down to the baseline;
+    every output hash is the same. (Before the
     bit-exact resampling of ``pipeline.resample`` the synthetic speaker's videos differed from frame 0.)"""
     low = lowest_dispatch()
     assert low["OPENCV_CPU_DISABLE"], "this CPU has no SIMD level above the baseline to turn off"
     small = {"synthetic_speaker": {"n_videos": 2, "seconds_per_video": 3.0}}
     locks = []
-    for name, env in (("highest", {}), ("lowest", low)):
+    for name, env in (("highest", highest_dispatch()), ("lowest", low)):
         proj = copy_project(tmp_path / name, small)
         dvc(proj, "repro", "landmarks", env=env)
         locks.append(yaml.safe_load((proj / "dvc.lock").read_text())["stages"])
