@@ -17,7 +17,8 @@ and mouth prediction are (in "prediction").
 
 Phases: prediction (audio → MFCC → LSTM → shapes; includes torch's first-call set-up),
 retiming, candidate_pool (reading the pool's textures), candidate_search, weighted_median,
-teeth, decode (target frames), retime_flow (half-way frames for repeats), flow (colour match +
+teeth, decode (target frames), retime_flow (half-way frames for repeats), target_geometry (per target
+frame, cached: layer masks, colour statistics, the ray map of render-back), flow (colour match +
 jaw-correction optical flow), render_back, blend, check (the self-check: dlib re-reads every
 output mouth), encode. Phase figures are thread time per
 frame (texture synthesis and compositing run 2 threads, so they add up to more than the wall
@@ -49,7 +50,7 @@ from stages.synthesize import synthesize  # noqa: E402
 SHARED = ROOT.parent / "shared" / "data"
 GRID_CLIP = "bbaf2n.mp4"      # a GRID s1 clip: the base model's speaker (its candidate bank joins the pool)
 PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weighted_median", "teeth", "detail",
-          "decode", "retime_flow", "flow", "render_back", "blend", "check", "encode"]
+          "decode", "retime_flow", "target_geometry", "flow", "render_back", "blend", "check", "encode"]
 
 
 def long_speech(out: Path, seconds: float | None = None) -> Path:

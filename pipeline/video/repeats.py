@@ -7,6 +7,8 @@ optical flow. ``synthesize`` decides the mapping; ``composite`` draws the frames
 """
 from __future__ import annotations
 
+import functools
+
 from typing import Callable, Iterator, Sequence, Union
 
 import cv2
@@ -98,18 +100,27 @@ def halfway_frame(prev: np.ndarray, next_: np.ndarray, flow=None, max_side: int 
     if k > 1:
         small = (w // k, h // k)
         g0, g1 = cv2.resize(g0, small, interpolation=cv2.INTER_AREA), cv2.resize(g1, small, interpolation=cv2.INTER_AREA)
-    up = lambda f: f if k == 1 else cv2.resize(f, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(k)
-    a = _warp_half(prev, up(flow.calc(g0, g1, None)))
-    b = _warp_half(next_, up(flow.calc(g1, g0, None)))
+    a = _warp_half(prev, flow.calc(g0, g1, None), k)
+    b = _warp_half(next_, flow.calc(g1, g0, None), k)
     return cv2.addWeighted(a, 0.5, b, 0.5, 0.0)
 
 
-def _warp_half(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """image(x − ½·flow(x)) by bilinear backward sampling; (H, W, 2) flow in pixels (dx, dy)."""
-    h, w = flow.shape[:2]
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    return cv2.remap(image, gx - 0.5 * flow[..., 0], gy - 0.5 * flow[..., 1], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)
+@functools.lru_cache(maxsize=4)
+def _pixel_grid(h: int, w: int) -> np.ndarray:
+    """(h, w, 2) float32 pixel coordinates (x, y), read-only (one per frame size, reused)."""
+    grid = np.dstack(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)))
+    grid.setflags(write=False)
+    return grid
+
+
+def _warp_half(image: np.ndarray, flow: np.ndarray, k: int = 1) -> np.ndarray:
+    """image(x − ½·F(x)) by bilinear backward sampling; ``flow`` (h, w, 2) in pixels (dx, dy) of an image
+    ``k`` times smaller than ``image``: F is it upsampled and scaled by k. One 2-channel map, built by one
+    multiply-add on a cached pixel grid (−½·k·flow is exact for k ≤ 2, so the map equals gx − ½·F there)."""
+    h, w = image.shape[:2]
+    f = flow if k == 1 else cv2.resize(flow, (w, h), interpolation=cv2.INTER_LINEAR)
+    maps = cv2.scaleAdd(f, -0.5 * k, _pixel_grid(h, w))
+    return cv2.remap(image, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def _check_image(image: np.ndarray, j: int) -> np.ndarray:

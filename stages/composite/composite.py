@@ -33,10 +33,10 @@ from pipeline.params import Composite, Params
 from pipeline.io.runner import stage_main, write_timing
 from pipeline.io.threads import opencv_threads
 from pipeline.io.store import atomic_output, i420_to_rgb, open_group
-from stages.composite.layers import (colour_match, jaw_band, jaw_correction, layer_masks, pyramid_blend, skin_region,
-                                     synth_alpha)
+from stages.composite.layers import colour_match, jaw_correction, pyramid_blend, synth_alpha
 from stages.composite import self_check
-from stages.composite.render import inverse_map, render, texture_footprint
+from stages.composite.render import render
+from stages.composite.target_geometry import GeometryCache
 
 log = logging.getLogger("lipsynth.composite")
 
@@ -64,6 +64,7 @@ class Target:
         self.pose_ok = np.asarray(self.fr["pose_valid"][f0:f0 + n])
         self.flm = np.asarray(self.fr["frontal_landmarks"][f0:f0 + n], np.float64)
         self.f0 = f0
+        self.geometry = GeometryCache()                 # per target frame: masks, colour statistics, ray map
 
     BLOCK = 64                                          # target frames read from the store at once
 
@@ -113,34 +114,23 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     t0 = time.perf_counter()
     if not tgt.pose_ok[j]:
         return frame                                   # no face geometry for this frame: keep the target
-    lm = tgt.flm[j]
-    T = synth_rgb.shape[0]
-    target_tex = tgt.texture(j)
-    px = T / 128.0                                     # feather and jaw band are given in px at T = 128
-    mouth, neck = layer_masks(lm, T, px * p.feather_px, overlap=3.0 * px, neck_depth=p.neck_depth)
+    g = tgt.geometry.get(tgt, j, synth_rgb.shape[0], p, frame.shape)
+    x0, y0, x1, y1 = g.box
+    if g.map_u is None:
+        return frame
+    t1 = time.perf_counter()
+    neck = g.neck
     if inpainted is not None:
         neck = neck * (1 - cv2.GaussianBlur(inpainted.astype(np.float32) / 255, (0, 0), 1.5))
     if p.colour_match:
-        synth_rgb = colour_match(synth_rgb, target_tex, skin_region(lm, mouth))
+        synth_rgb = colour_match(synth_rgb, g.texture, g.skin, g.lab)
     if p.jaw_correction:
-        synth_rgb = jaw_correction(synth_rgb, target_tex, jaw_band(lm, T, px * p.jaw_band_px))
-    t1 = time.perf_counter()
-    shirt = cv2.GaussianBlur(tgt.clothing(j), (0, 0), 1.5)
-    alpha = synth_alpha(mouth, neck, shirt)
-    rvec, tvec = tgt.pose[j, :3], tgt.pose[j, 3:]
-    # the blend box: the texture's footprint plus the reach of the coarsest pyramid level
-    margin = 2 ** p.pyramid_levels
-    x0, y0, x1, y1 = texture_footprint(tgt.outline_points, rvec, tvec, tgt.K, frame.shape, margin=margin)
-    if x1 <= x0 or y1 <= y0:
-        return frame
-    # the ray map is solved every ≈ 2.5 texture px (at least every 4 frame px) and interpolated
-    # between: the same accuracy in the texture whatever the face's size in the frame
-    frame_px_per_texel = max(x1 - x0 - 2 * margin, 1) / T
-    step = max(4, int(round(2.5 * frame_px_per_texel)))
-    mu, mv = inverse_map((x0, y0, x1, y1), tgt.surface, tgt.window, rvec, tvec, tgt.K, step=step)
-    layer = np.dstack([synth_rgb, np.round(alpha * 255).astype(np.uint8)])
-    rendered, cover = render(layer, mu, mv)
+        synth_rgb = jaw_correction(synth_rgb, g.texture, g.band)
     t2 = time.perf_counter()
+    alpha = synth_alpha(g.mouth, neck, g.shirt)
+    layer = np.dstack([synth_rgb, np.round(alpha * 255).astype(np.uint8)])
+    rendered, cover = render(layer, g.map_u, g.map_v)
+    t3 = time.perf_counter()
     a = rendered[..., 3].astype(np.float32) / 255 * cover
     back = frame[y0:y1, x0:x1]
     if p.sharpen > 0:              # give back the detail the resampling chain took (unsharp mask)
@@ -154,8 +144,8 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     out = frame.copy()
     out[y0:y1, x0:x1] = pyramid_blend(front, back, a, p.pyramid_levels)
     if timing is not None:
-        t3 = time.perf_counter()
-        for k, dt in (("flow", t1 - t0), ("render_back", t2 - t1), ("blend", t3 - t2)):
+        t4 = time.perf_counter()
+        for k, dt in (("target_geometry", t1 - t0), ("flow", t2 - t1), ("render_back", t3 - t2), ("blend", t4 - t3)):
             timing[k] = timing.get(k, 0.0) + dt
     return out
 

@@ -108,20 +108,33 @@ def pyramid_blend(front: np.ndarray, back: np.ndarray, alpha: np.ndarray, levels
     return np.clip(out + b + 0.5, 0, 255).astype(np.uint8)
 
 
-def colour_match(synth_rgb: np.ndarray, target_rgb: np.ndarray, region: np.ndarray) -> np.ndarray:
+def lab_stats(rgb: np.ndarray, region: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per Lab channel mean and standard deviation (3,), (3,) of (T, T, 3) uint8 ``rgb`` over ``region``
+    (T, T) bool; None when the region has fewer than 50 pixels."""
+    mask = region.astype(np.uint8)
+    if cv2.countNonZero(mask) < 50:
+        return None
+    m, s = cv2.meanStdDev(cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB), mask=mask)
+    return m.ravel(), s.ravel()
+
+
+def colour_match(synth_rgb: np.ndarray, target_rgb: np.ndarray, region: np.ndarray,
+                 target_stats: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Give the synthesized texture the target frame's colour statistics (per Lab channel mean
     and standard deviation over ``region``, the skin of the lower face).
 
     Candidates drawn from other videos of the corpus carry their own lighting and white
     balance; without this the replaced lower face is a different shade from the rest of the face.
     synth_rgb, target_rgb : (T, T, 3) uint8; region : (T, T) bool → (T, T, 3) uint8.
+    ``target_stats``: ``lab_stats(target_rgb, region)`` when the caller has it (it depends on the target frame
+    alone); ``target_rgb`` is then not read.
     """
     mask = region.astype(np.uint8)
     if cv2.countNonZero(mask) < 50:
         return synth_rgb
     s = cv2.cvtColor(synth_rgb, cv2.COLOR_RGB2LAB)
     ms, ss = (v.ravel() for v in cv2.meanStdDev(s, mask=mask))
-    mt, st = (v.ravel() for v in cv2.meanStdDev(cv2.cvtColor(target_rgb, cv2.COLOR_RGB2LAB), mask=mask))
+    mt, st = target_stats if target_stats is not None else lab_stats(target_rgb, region)
     gain = np.clip((st + 1e-3) / (ss + 1e-3), 0.5, 2.0)
     out = s * gain.astype(np.float32) + (mt - ms * gain).astype(np.float32)
     return cv2.cvtColor(np.clip(out + 0.5, 0, 255).astype(np.uint8), cv2.COLOR_LAB2RGB)
