@@ -21,8 +21,8 @@ teeth, decode (target frames), retime_flow (half-way frames for repeats), target
 frame, cached: layer masks, colour statistics, the ray map of render-back), flow (colour match +
 jaw-correction optical flow), render_back, blend, check (the self-check: dlib re-reads every
 output mouth), encode. Phase figures are thread time per
-frame (texture synthesis and compositing run 2 threads, so they add up to more than the wall
-time); "total" is wall time. Medians over repeats; the machine is noisy. The paper: 0.45
+frame (texture synthesis, then compositing, each run 2 threads, so they add up to more than the
+wall time); "total" is wall time. Medians over repeats; the machine is noisy. The paper: 0.45
 s/frame on one core.
 """
 from __future__ import annotations
@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -43,9 +42,6 @@ sys.path.insert(0, str(ROOT))
 from lipsynth import speak  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.io.runner import setup_logging  # noqa: E402
-from pipeline.io.store import open_group  # noqa: E402
-from stages.composite import composite  # noqa: E402
-from stages.synthesize import synthesize  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 GRID_CLIP = "bbaf2n.mp4"      # a GRID s1 clip: the base model's speaker (its candidate bank joins the pool)
@@ -88,17 +84,15 @@ def upscaled(video: Path, out: Path, size: tuple[int, int]) -> Path:
 
 
 def one_run(prep, audio: str, target: str, work: Path) -> tuple[dict, float, int]:
-    """Synthesize + composite (``lipsynth speak`` after its preparation): ``prep`` saying ``audio`` into
-    ``target``; mouth prediction is timed (in "prediction")."""
-    store = work / "synthesize.zarr"
-    p = prep.params
+    """Synthesis and compositing as ``lipsynth speak`` runs them after its preparation
+    (``speak.synthesize_and_composite``): ``prep`` saying ``audio`` into ``target``; mouth prediction is timed
+    (in "prediction")."""
+    from pipeline.io import media
+    out = work / "out.mp4"
     t0 = time.perf_counter()
-    ms = synthesize.run(p, str(store), prep.stores, prep.entry)
-    ms.update(composite.run(p, str(store), str(work / "out.mp4"), p.frontalize.out, target, audio))
+    ms = speak.synthesize_and_composite(dataclasses.replace(prep, mouth=None), audio, target, str(out))
     wall = time.perf_counter() - t0
-    n = open_group(str(store)).attrs["n_frames"]
-    shutil.rmtree(store, ignore_errors=True)
-    return ms, wall, n
+    return ms, wall, media.probe(out).n_frames
 
 
 def report(name: str, runs: list) -> dict:
@@ -152,10 +146,11 @@ def write_page(path: Path, page: Path = ROOT / "docs" / "synthesis_speed.md") ->
     res = json.loads(path.read_text())
     lines = ["<!-- written by bench/synthesize.py from results/synthesize_speed.json; do not edit -->",
              "# Synthesis speed", "",
-             "`python bench/synthesize.py --repeats 3`: synthesize + composite of 32 s of speech into a GRID "
-             "validation clip, obama_08 (720p) and the same upscaled to 1080p; ms/frame per phase (thread time: "
-             "two threads, so phases add up to more than the wall time), medians over repeats; frames/s is wall "
-             "time on 2 cores. Goals (issue 33): GRID ≥ 60, 720p ≥ 30, 1080p ≥ 20 frames/s. Columns named with a "
+             "`python bench/synthesize.py --repeats 3`: synthesis and compositing as `lipsynth speak` runs them "
+             "(with the shipped base model) of 32 s of speech into a GRID s1 clip, obama_08 (720p) "
+             "and the same upscaled to 1080p; ms/frame per phase (thread time: each phase runs on two "
+             "threads, so phases add up to more than the wall time), medians over repeats; "
+             "frames/s is wall time on 2 cores; each column keeps the commit and date it was measured on. Goals (issue 33): GRID ≥ 60, 720p ≥ 30, 1080p ≥ 20 frames/s. Columns named with a "
              "method (`two_band`) ran with that `synthesize.detail` (`--detail`); the others with params.yaml's.", ""]
     for cpu, entry in res["by_cpu"].items():
         rows = entry["rows"]
