@@ -132,3 +132,24 @@ def test_render_map_upsampling_is_aligned_with_its_samples():
     assert u.shape == v.shape == (h, w)
     assert np.abs(u - (0.3 * fx + 0.1 * fy + 2.0)).max() < 1e-3
     assert np.abs(v - (-0.2 * fx + 0.5 * fy)).max() < 1e-3
+
+
+def test_geometry_cache_reuses_frames_and_stays_within_its_budget(monkeypatch):
+    """One computation per target frame while it stays cached; least recently used frames leave first once
+    the byte budget is reached."""
+    from stages.composite import target_geometry as tg
+    calls = []
+
+    def fake(tgt, j, T, p, shape):
+        calls.append(j)
+        a = np.zeros((T, T), np.float32)                    # 4·T² bytes per array, 5 arrays
+        return tg.TargetGeometry(np.zeros((T, T, 3), np.uint8)[:0], a, a, None, None, None, a, (0, 0, 1, 1), a, a)
+
+    monkeypatch.setattr(tg, "target_geometry", fake)
+    one = 5 * 4 * 16 * 16
+    cache = tg.GeometryCache(budget_bytes=3 * one)
+    for j in (0, 1, 0, 2, 0, 3, 1):
+        cache.get(None, j, 16, None, (32, 32, 3))
+    assert calls == [0, 1, 2, 3, 1]                         # 0 kept (recently used), 1 evicted by 3, then re-made
+    assert cache.used <= 3 * one and len(cache.items) == 3
+    assert cache.hits == 2 and cache.misses == 5

@@ -277,3 +277,20 @@ def test_repeated_frame_is_interpolated_half_way():
     listed = list(interpolate_repeats(frames, mapping))
     for a, b in zip(listed, out):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_half_warp_is_the_per_pixel_formula(k):
+    """The half-way warp (one 2-channel map on a cached grid) samples image(x − ½·F(x)) with F the flow
+    upsampled and scaled by k: the same bytes as building gx − ½F and gy − ½F pixel by pixel."""
+    import cv2
+    from pipeline.video.repeats import _warp_half
+    rng = np.random.default_rng(k)
+    image = rng.integers(0, 256, (60, 80, 3), np.uint8)
+    flow = rng.normal(0, 3, (60 // k, 80 // k, 2)).astype(np.float32)
+    up = flow if k == 1 else cv2.resize(flow, (80, 60), interpolation=cv2.INTER_LINEAR) * np.float32(k)
+    gx, gy = np.meshgrid(np.arange(80, dtype=np.float32), np.arange(60, dtype=np.float32))
+    want = cv2.remap(image, gx - 0.5 * up[..., 0], gy - 0.5 * up[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+    assert np.array_equal(_warp_half(image, flow, k), want)
+    assert not np.array_equal(want, image)            # the flow moved pixels: the comparison means something
