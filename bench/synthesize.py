@@ -34,11 +34,11 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import pipeline  # noqa: E402,F401  (first: it sets the SIMD level every library reads when it loads)
+import numpy as np  # noqa: E402
 from lipsynth import speak  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.io.runner import setup_logging  # noqa: E402
@@ -132,7 +132,9 @@ def write_results(rows: dict, path: Path) -> None:
     for name, r in entry["rows"].items():                 # rows of earlier runs keep their own commit and date
         r.setdefault("commit", entry.get("commit"))
         r.setdefault("date", entry.get("date"))
-    entry.update(commit=commit, date=date, machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores")
+    model = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
+                 platform.processor() or platform.machine()) if os.path.exists("/proc/cpuinfo") else platform.machine()
+    entry.update(commit=commit, date=date, machine=f"{model}, {os.cpu_count()} cores")
     entry["rows"].update(rows)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(old, indent=1))
