@@ -153,7 +153,10 @@ def write_page(path: Path, page: Path = ROOT / "docs" / "synthesis_speed.md") ->
              "and the same upscaled to 1080p; ms/frame per phase (thread time: each phase runs on two "
              "threads, so phases add up to more than the wall time), medians over repeats; "
              "frames/s is wall time on 2 cores; each column keeps the commit and date it was measured on. Goals (issue 33): GRID ≥ 60, 720p ≥ 30, 1080p ≥ 20 frames/s. Columns named with a "
-             "method (`two_band`) ran with that `synthesize.detail` (`--detail`); the others with params.yaml's.", ""]
+             "method (`two_band`) ran with that `synthesize.detail` (`--detail`); the others with params.yaml's. "
+             "The AVX2 table is what lipsynth runs on every CPU with AVX2, AVX-512 ones included (the cap of "
+             "`pipeline/simd_level.py`, for the same bytes everywhere); the AVX-512 table lifts the cap "
+             "(`LIPSYNTH_SIMD=native python bench/synthesize.py`).", ""]
     for cpu, entry in res["by_cpu"].items():
         rows = entry["rows"]
         lines += [f"## {cpu} ({entry['machine']})", "",
