@@ -87,9 +87,10 @@ def test_targets_cover_the_lower_face_and_pairs_need_two_valid_frames():
 def test_fit_learns_a_mapping_from_audio_to_targets():
     """The whole §4 loop (features, pairs, shifts, noise, normalised loss, schedule) learns to tell a
     tone from the noise floor well enough to predict it on a fresh clip (~1 min on 2 cores).
-    Four clips (316 pairs, 15 steps of 10 pairs per epoch) for 300 steps = 20 epochs: the loss falls to
-    0.0006 of its first value and the fresh clip's correlation is 0.94 (bound 0.8; at 150–200 steps it was
-    0.83–0.85, too close to the bound)."""
+    Four clips (316 pairs, 15 steps of 10 pairs per epoch) for 300 steps = 20 epochs at lr 3e-3. (At the
+    paper's 1e-3 this short budget is a lottery: the fresh clip's correlation ranged 0.12–0.95 over seeds and
+    CPUs — the network often still predicts the mean at step 300; at 3e-3 it was 0.93–0.98 over five seeds and
+    both SIMD levels. Bound 0.8.)"""
     from stages.train_karras.fit import FitConfig, batch_inputs, fit
     fps, sr = 25.0, 16000
 
@@ -104,7 +105,7 @@ def test_fit_learns_a_mapping_from_audio_to_targets():
                     targets=np.stack([level, 1 - level, 0.5 * level], 1).astype(np.float32))
 
     videos = [clip(s, "train") for s in range(4)]
-    net, emo, hist = fit(videos, FitConfig(steps=300, val_every=15, batch=20, seed=0, emotions=False), progress=False)
+    net, emo, hist = fit(videos, FitConfig(steps=300, val_every=15, batch=20, lr=3e-3, seed=0, emotions=False), progress=False)
     assert emo.shape == (sum(len(v["targets"]) for v in videos), 16)
     assert hist[-1]["position"] < 0.01 * hist[0]["position"], hist
     # the trained network tells tone from noise on a fresh clip
