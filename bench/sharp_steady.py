@@ -55,6 +55,10 @@ CASES = {
     "1080": (DIAG / "hdtf_aoc" / "model", DIAG / "hdtf_aoc" / "w" / "footage" / "WDA_AlexandriaOcasioCortez_000_s002.mp4", 1080),
     "2160": (DIAG / "hdtf_aoc" / "model", DIAG / "hdtf_aoc" / "w" / "footage" / "WDA_AlexandriaOcasioCortez_000_s002.mp4", 2160),
 }
+# the same people's source footage, for ``--model`` (a model of your choice instead of the diagnosis ones)
+SOURCES = {"256": SHARED / "lieu" / "lieu_60s.mp4", "512": SHARED / "hdtf" / "WDA_AlexandriaOcasioCortez_000.mp4",
+           "720x576": SHARED / "grid_s4" / "brwt1n.mp4", "1080": SHARED / "hdtf" / "WDA_AlexandriaOcasioCortez_000.mp4",
+           "2160": SHARED / "hdtf" / "WDA_AlexandriaOcasioCortez_000.mp4"}
 KEYS = ("sharpness_ratio", "detail_energy_ratio", "flicker_ratio", "detail_flicker_ratio", "error_ratio", "opening_corr")
 
 
@@ -150,11 +154,18 @@ def main() -> None:
     ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
     ap.add_argument("--methods", nargs="*", default=list(METHODS), choices=list(METHODS))
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a synthesize key for every method, e.g. --set detail_switch_cost=4 (repeatable)")
+                    help="override a key for every method: section.key=value, a bare key is synthesize's, e.g. --set "
+                         "detail_switch_cost=4 --set frontalize.max_texture_size=512 (repeatable)")
+    ap.add_argument("--model", type=Path, help="use this model for every case (e.g. models/base) and the people's "
+                    "source clips from ../shared/data, instead of bench/person_diagnosis.py's models and held-out clips")
+    ap.add_argument("--tag", default="", help="suffix of the output videos' names (keeps runs apart)")
     ap.add_argument("--dry", action="store_true", help="print the rows only; write no results, page or images")
     ap.add_argument("--page-only", action="store_true", help="only redraw the page and chart from results/sharp_steady.json")
     a = ap.parse_args()
-    overrides = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in a.set)}
+    overrides = {}                                   # section → {key: value}; a bare key is synthesize's
+    for k, v in (s.split("=", 1) for s in a.set):
+        section, _, key = k.rpartition(".")
+        overrides.setdefault(section or "synthesize", {})[key] = yaml.safe_load(v)
     if a.page_only:
         summary = json.loads((ROOT / "results" / "sharp_steady.json").read_text())
         plot(summary["rows"], ROOT / "docs" / "img" / "sharp_steady.png")
@@ -166,16 +177,19 @@ def main() -> None:
     rows = []
     for case in a.cases:
         model, clip, lines = CASES[case]
+        if a.model:
+            model, clip = a.model, SOURCES[case]
         if not model.is_dir() or not clip.is_file():
             raise SystemExit(f"{case}: needs {model} and {clip} (run bench/person_diagnosis.py first)")
         clip = upscaled(clip, lines) if lines else clip
         ref = quality.video_landmarks(clip, lm_params)
         outs = []
         for method in a.methods:
-            tree = dict(base, synthesize=dict(base["synthesize"], **overrides, detail=method))
+            tree = dict(base, **{sec: dict(base[sec], **kv) for sec, kv in overrides.items()})
+            tree["synthesize"] = dict(tree["synthesize"], detail=method)
             params = WORK / f"params_{method}.yaml"
             params.write_text(yaml.safe_dump(tree, sort_keys=False))
-            out = WORK / f"{case}_{method}.mp4"
+            out = WORK / f"{case}_{method}{'_' + a.model.name if a.model else ''}{'_' + a.tag if a.tag else ''}.mp4"
             seconds, phases = speak(model, clip, out, params)
             q = quality.compare(*quality.video_landmarks(out, lm_params), *ref)
             n = q["frames"]
@@ -197,7 +211,8 @@ def main() -> None:
         return
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     summary = dict(commit=commit, date=time.strftime("%Y-%m-%d"), machine=f"{platform.processor() or platform.machine()}, "
-                   f"{os.cpu_count()} cores", rows=rows)
+                   f"{os.cpu_count()} cores", model=str(a.model) if a.model else "runs/diagnosis/<person>/model",
+                   rows=rows)
     (ROOT / "results").mkdir(exist_ok=True)
     (ROOT / "results" / "sharp_steady.json").write_text(json.dumps(summary, indent=1) + "\n")
     plot(rows, ROOT / "docs" / "img" / "sharp_steady.png")

@@ -25,7 +25,7 @@ from pipeline.params import Params, as_dict
 log = logging.getLogger("lipsynth.target")
 
 PREPROCESS = ("ingest", "landmarks", "frontalize")
-CACHE_FORMAT = 5          # bump when the preprocessing code changes what it stores (5: half-resolution inpainting)
+CACHE_FORMAT = 6          # bump when the preprocessing code changes what it stores (6: bicubic crops and textures)
 
 
 def warm_up_worker() -> None:

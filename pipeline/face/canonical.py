@@ -145,4 +145,4 @@ def sample_image(image: np.ndarray, points: np.ndarray, rvec, tvec, K: np.ndarra
     # element-wise float64 (no BLAS, whose kernels differ by CPU) and a bit-exact remap: the same bytes anywhere
     p = points.astype(np.float64, copy=False)
     u, v, w = (p[..., 0] * M[i, 0] + p[..., 1] * M[i, 1] + p[..., 2] * M[i, 2] + b[i] for i in range(3))
-    return resample.remap(image, u / w, v / w, cv2.BORDER_REPLICATE)
+    return resample.remap(image, u / w, v / w, cv2.BORDER_REPLICATE, interpolation="cubic")   # bicubic: keeps the detail

@@ -85,7 +85,8 @@ def resample_plane(plane: np.ndarray, scale: float, off_x: float, off_y: float, 
     """Resample one image plane: output pixel (u, v) ← input (off_x + scale·u, off_y + scale·v).
 
     Large downscales (scale > 1.5) are area-averaged first so that nothing aliases; outside the
-    input, border pixels are replicated. Bilinear and bit-exact on any x86-64 CPU (``pipeline.resample``).
+    input, border pixels are replicated. Bicubic (a bilinear crop would soften the mouth by ≈ 30 % in Laplacian
+    variance before anything else touches it) and bit-exact on any x86-64 CPU (``pipeline.resample``).
     """
     if scale > 1.5:
         plane = cv2.resize(plane, None, fx=1 / scale, fy=1 / scale, interpolation=cv2.INTER_AREA)
@@ -93,8 +94,7 @@ def resample_plane(plane: np.ndarray, scale: float, off_x: float, off_y: float, 
     else:
         k, x0, y0 = scale, off_x, off_y
     u = np.arange(size, dtype=np.float64)
-    return resample.remap(plane, np.broadcast_to(x0 + k * u, (size, size)),
-                          np.broadcast_to((y0 + k * u)[:, None], (size, size)), cv2.BORDER_REPLICATE)
+    return resample.sample_grid_cubic(plane, x0 + k * u, y0 + k * u, cv2.BORDER_REPLICATE)
 
 
 def cut_crop(yuv: tuple[np.ndarray, np.ndarray, np.ndarray], box: tuple[float, float, float], size: int) -> np.ndarray:
