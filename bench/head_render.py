@@ -34,11 +34,13 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+
 import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from pipeline.face import dlib_face  # noqa: E402
 from pipeline.io import media  # noqa: E402

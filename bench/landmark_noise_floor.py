@@ -20,10 +20,12 @@ import tempfile
 from pathlib import Path
 
 import av
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from pipeline.io import media  # noqa: E402
 from pipeline.face.canonical import Surface, TextureWindow, frontal_landmarks  # noqa: E402

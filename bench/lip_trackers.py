@@ -49,10 +49,12 @@ import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from pipeline.face import dlib_face  # noqa: E402
 from pipeline.face import mediapipe_lips as mpl  # noqa: E402

@@ -36,10 +36,12 @@ import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 YARDSTICK = ROOT.parent / "shared" / "tools" / "lipsync_yardstick.py"
 BAND_HZ = (1.0, 8.0)
 CANDIDATES = ("base", "readout", "encoder_readout", "fine_tune")

@@ -29,10 +29,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from base_model import run  # noqa: E402  (bench/base_model.py: one stage as a subprocess, its seconds)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 import numpy as np
 
 from lipsynth import speak as speak_app

@@ -81,3 +81,24 @@ def test_x264_is_held_at_the_capped_instruction_sets(tmp_path):
         av.logging.set_level(None)
     used = [m for _, name, m in logs if name == "libx264" and "cpu capabilities" in m]
     assert len(used) == 1 and "AVX2" in used[0] and "AVX512" not in used[0], used
+
+
+NUMERIC = ("numpy", "cv2", "torch", "scipy", "sklearn", "ctranslate2")
+FIRST_PARTY = ("pipeline", "stages", "lipsynth")
+
+
+def test_every_bench_caps_the_simd_level_before_a_numeric_library_loads():
+    """A bench that imports NumPy before ``pipeline`` runs NumPy uncapped (AVX-512 on such a CPU): its
+    figures would not be those of the path users run."""
+    late = []
+    for path in sorted((ROOT / "bench").glob("*.py")):
+        order = []
+        for node in ast.parse(path.read_text()).body:          # module level, in order
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            order += [n.split(".")[0] for n in names]
+        first_numeric = next((i for i, n in enumerate(order) if n in NUMERIC), None)
+        first_ours = next((i for i, n in enumerate(order) if n in FIRST_PARTY), None)
+        if first_numeric is not None and (first_ours is None or first_ours > first_numeric):
+            late.append(path.name)
+    assert late == []
