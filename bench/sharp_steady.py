@@ -57,6 +57,10 @@ CASES = {
     "1080": (DIAG / "hdtf_aoc" / "model", DIAG / "hdtf_aoc" / "w" / "footage" / "WDA_AlexandriaOcasioCortez_000_s002.mp4", 1080),
     "2160": (DIAG / "hdtf_aoc" / "model", DIAG / "hdtf_aoc" / "w" / "footage" / "WDA_AlexandriaOcasioCortez_000_s002.mp4", 2160),
 }
+# the same footage with the texture following the face further (the defaults cap the stored crop at 448 px and
+# the texture at 256 px: at 1080 and 2160 lines the face is stored smaller than it is filmed)
+FINER = {"ingest": {"max_crop_size": 1024}, "frontalize": {"max_texture_size": 512}}
+VARIANTS = {"1080 tex512": ("1080", FINER), "2160 tex512": ("2160", FINER)}
 # the same people's source footage, for ``--model`` (a model of your choice instead of the diagnosis ones)
 SOURCES = {"256": SHARED / "lieu" / "lieu_60s.mp4", "512": SHARED / "hdtf" / "WDA_AlexandriaOcasioCortez_000.mp4",
            "720x576": SHARED / "grid_s4" / "brwt1n.mp4", "1080": SHARED / "hdtf" / "WDA_AlexandriaOcasioCortez_000.mp4",
@@ -131,9 +135,12 @@ def page(summary: dict) -> str:
     rows = summary["rows"]
     lines = ["<!-- Written by `python bench/sharp_steady.py`; do not edit. -->", "# Sharp and steady mouths", "",
              f"Measured {summary['date']} on commit `{summary['commit']}` ({summary['machine']}) by "
-             "`bench/sharp_steady.py`: `lipsynth speak` with each held-out clip's own audio into the clip, no "
-             "re-timing, once per `synthesize.detail`; every figure is output / the real video (1 = as the real "
-             "mouth). Detail energy and detail flicker measure the band of wavelengths below ≈ IOD/8, motion "
+             "`bench/sharp_steady.py`: `lipsynth speak` with each clip's own audio into the clip, no "
+             f"re-timing, once per `synthesize.detail`, model `{summary.get('model', 'runs/diagnosis/<person>/model')}` "
+             "(the mouths come from the target's own frames: another person's path); every figure is output / the "
+             "real video (1 = as the real mouth). Rows named `tex512` store the face finer (`ingest.max_crop_size: "
+             "1024`, `frontalize.max_texture_size: 512`; the defaults 448 and 256 store a 1080- or 2160-line face "
+             "smaller than it is filmed). Detail energy and detail flicker measure the band of wavelengths below ≈ IOD/8, motion "
              "compensated for flicker. The goals: sharpness 0.9–1.1 (green band), flicker at most 1.2 (dashed). Texture ms/frame is the thread time "
              "of candidate search, weighted median, teeth and detail (one run; `bench/synthesize.py` measures speed "
              "properly); speak frames/s is the whole run's wall time over its frames, the target's preprocessing "
@@ -147,13 +154,13 @@ def page(summary: dict) -> str:
                      f"{r['error_ratio']:.2f} | {r['opening_corr']:.2f} | {r['texture_ms']:.1f} | {r['frames_per_second']:.1f} |")
     lines += ["", "Mouth crops, top to bottom: original, " + ", ".join(METHODS) + "; three frames each:", ""]
     for case in dict.fromkeys(r["case"] for r in rows):
-        lines += [f"![{case}](img/sharp_steady_{case}.jpg)", ""]
+        lines += [f"![{case}](img/sharp_steady_{case.replace(' ', '_')}.jpg)", ""]
     return "\n".join(lines)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
+    ap.add_argument("--cases", nargs="*", default=[*CASES, *VARIANTS], choices=[*CASES, *VARIANTS])
     ap.add_argument("--methods", nargs="*", default=list(METHODS), choices=list(METHODS))
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a key for every method: section.key=value, a bare key is synthesize's, e.g. --set "
@@ -178,20 +185,22 @@ def main() -> None:
     lm_params = load_params(ROOT / "params.yaml").landmarks
     rows = []
     for case in a.cases:
-        model, clip, lines = CASES[case]
+        footage, extra = VARIANTS.get(case, (case, {}))
+        model, clip, lines = CASES[footage]
         if a.model:
-            model, clip = a.model, SOURCES[case]
+            model, clip = a.model, SOURCES[footage]
         if not model.is_dir() or not clip.is_file():
             raise SystemExit(f"{case}: needs {model} and {clip} (run bench/person_diagnosis.py first)")
         clip = upscaled(clip, lines) if lines else clip
         ref = quality.video_landmarks(clip, lm_params)
         outs = []
         for method in a.methods:
-            tree = dict(base, **{sec: dict(base[sec], **kv) for sec, kv in overrides.items()})
+            changes = {sec: {**extra.get(sec, {}), **overrides.get(sec, {})} for sec in {*extra, *overrides}}
+            tree = dict(base, **{sec: dict(base[sec], **kv) for sec, kv in changes.items()})
             tree["synthesize"] = dict(tree["synthesize"], detail=method)
             params = WORK / f"params_{method}.yaml"
             params.write_text(yaml.safe_dump(tree, sort_keys=False))
-            out = WORK / f"{case}_{method}{'_' + a.model.name if a.model else ''}{'_' + a.tag if a.tag else ''}.mp4"
+            out = WORK / f"{case.replace(' ', '_')}_{method}{'_' + a.model.name if a.model else ''}{'_' + a.tag if a.tag else ''}.mp4"
             seconds, phases = speak(model, clip, out, params)
             q = quality.compare(*quality.video_landmarks(out, lm_params), *ref)
             n = q["frames"]
@@ -207,7 +216,7 @@ def main() -> None:
             continue
         strip = mouth_strip([clip, *outs], q["mouth_box"])
         (ROOT / "docs" / "img").mkdir(exist_ok=True)
-        cv2.imwrite(str(ROOT / "docs" / "img" / f"sharp_steady_{case}.jpg"), strip[..., ::-1],
+        cv2.imwrite(str(ROOT / "docs" / "img" / f"sharp_steady_{case.replace(' ', '_')}.jpg"), strip[..., ::-1],
                     [cv2.IMWRITE_JPEG_QUALITY, 90])
     if a.dry:
         return
