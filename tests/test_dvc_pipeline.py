@@ -176,7 +176,10 @@ def test_karras_trains_beats_the_mean_shape_and_mines_emotions(project, tmp_path
     # the validation curve falls from its first point (one epoch in): measured 2.47 → 1.57 px² over
     # the demo's 120 steps on the synthetic speaker; an unlearning network stays flat
     assert len(val) >= 3 and val[-1] < 0.75 * val[0], val
-    assert float(rows[-1]["position"]) < 0.5 * float(rows[0]["position"])
+    # the training loss of one epoch is noisy (measured: the last of the demo's 10 spiked from 1.17 to 1.83
+    # while the validation error fell), so the last three epochs' mean is compared with the first epoch's
+    train = [float(r["position"]) for r in rows]
+    assert len(train) >= 4 and np.mean(train[-3:]) < 0.5 * train[0], train
     r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "emotions", "--model", str(project / "models" / "karras")],
                        cwd=project, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and "← default" in r.stdout, r.stderr
