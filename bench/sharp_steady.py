@@ -113,20 +113,22 @@ def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 4, figsize=(14, 3.4))
+    fig, axes = plt.subplots(1, 4, figsize=(16, 4.2))
     cases = list(dict.fromkeys(r["case"] for r in rows))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    width = 0.8 / len(methods)
     for ax, key in zip(axes, KEYS[:4]):
-        for j, m in enumerate(METHODS):
+        for j, m in enumerate(methods):
             vals = [next((r[key] for r in rows if r["case"] == c and r["method"] == m), np.nan) for c in cases]
-            ax.bar(np.arange(len(cases)) + (j - (len(METHODS) - 1) / 2) * 0.27, vals, 0.27, label=m)
+            ax.bar(np.arange(len(cases)) + (j - (len(methods) - 1) / 2) * width, vals, width, label=m)
         if "flicker" in key:
             ax.axhline(1.2, color="g", ls="--", lw=1)          # the goal: at most 1.2 × the real video's
         else:
             ax.axhspan(0.9, 1.1, color="g", alpha=0.12)        # the goal: 0.9–1.1 of the real mouth
         ax.axhline(1.0, color="k", lw=0.8)
-        ax.set_xticks(range(len(cases)), cases)
+        ax.set_xticks(range(len(cases)), cases, rotation=35, ha="right")
         ax.set_title(key.replace("_", " ") + " (output / real)")
-    axes[0].legend()
+    axes[0].legend(loc="lower left", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -152,7 +154,8 @@ def page(summary: dict) -> str:
         lines.append(f"| {r['case']} ({r['size']}) | {r['method']} | {r['sharpness_ratio']:.2f} | "
                      f"{r['detail_energy_ratio']:.2f} | {r['flicker_ratio']:.2f} | {r['detail_flicker_ratio']:.2f} | "
                      f"{r['error_ratio']:.2f} | {r['opening_corr']:.2f} | {r['texture_ms']:.1f} | {r['frames_per_second']:.1f} |")
-    lines += ["", "Mouth crops, top to bottom: original, " + ", ".join(METHODS) + "; three frames each:", ""]
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    lines += ["", "Mouth crops, top to bottom: original, " + ", ".join(methods) + "; three frames each:", ""]
     for case in dict.fromkeys(r["case"] for r in rows):
         lines += [f"![{case}](img/sharp_steady_{case.replace(' ', '_')}.jpg)", ""]
     return "\n".join(lines)
