@@ -142,17 +142,28 @@ def displacement_field(src_lm: np.ndarray, dst_lm: np.ndarray, size: int, sigma:
     zero-displacement anchor so that far from the points nothing moves."""
     s, d = np.asarray(src_lm, np.float64)[points], np.asarray(dst_lm, np.float64)[points]
     g = np.arange(0, size + step, step, dtype=np.float64)
-    gx, gy = np.meshgrid(g, g)
-    d2 = (gx[..., None] - d[:, 0]) ** 2 + (gy[..., None] - d[:, 1]) ** 2       # (G, G, P)
-    w = np.exp(-d2 / (2 * sigma ** 2))
-    den = w.sum(-1) + 0.05                                                    # the anchor: d = 0
-    disp = (w[..., None] * (s - d)).sum(2) / den[..., None]                   # (G, G, 2)
+    k = -1 / (2 * sigma ** 2)
+    ex = np.exp(k * (g[:, None] - d[:, 0]) ** 2)                  # (G, P): the Gaussian is separable in x, y
+    ey = np.exp(k * (g[:, None] - d[:, 1]) ** 2)
+    w = ey[:, None, :] * ex[None, :, :]                            # (G, G, P)
+    den = w.sum(-1) + 0.05                                         # the anchor: d = 0
+    disp = np.einsum("ijp,pk->ijk", w, s - d) / den[..., None]     # (G, G, 2); einsum's own loops, no BLAS
     coarse = disp.astype(np.float32)
-    at = np.arange(size, dtype=np.float32) / step                  # grid node j sits at pixel j·step
-    ux, uy = np.meshgrid(at, at)
+    ux, uy = _node_coordinates(size, step)
     fine = cv2.remap(coarse, ux, uy, cv2.INTER_LINEAR)               # bilinear between nodes, corners aligned
     px = np.arange(size, dtype=np.float32)
     return (np.ascontiguousarray(fine[..., 0] + px[None, :]), np.ascontiguousarray(fine[..., 1] + px[:, None]))
+
+
+_NODES: dict = {}
+
+
+def _node_coordinates(size: int, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """(size, size) float32 grid-node coordinates of every pixel (node j sits at pixel j·step); cached."""
+    if (size, step) not in _NODES:
+        at = np.arange(size, dtype=np.float32) / step
+        _NODES[size, step] = tuple(np.meshgrid(at, at))
+    return _NODES[size, step]
 
 
 def align_candidates(textures: np.ndarray, src_points: np.ndarray, dst_points: np.ndarray,
@@ -207,7 +218,7 @@ def align_to(candidate: np.ndarray, cand_lm: np.ndarray, target: np.ndarray, tar
     a = cv2.GaussianBlur(cv2.cvtColor(target, cv2.COLOR_RGB2GRAY), (0, 0), k)
     b = cv2.GaussianBlur(cv2.cvtColor(warped, cv2.COLOR_RGB2GRAY), (0, 0), k)
     f = _dis().calc(a, b, None)                                   # a(p) ≈ b(p + f(p))
-    gy, gx = np.mgrid[0:size, 0:size].astype(np.float32)
+    gx, gy = _node_coordinates(size, 1)                           # pixel coordinates, cached
     return cv2.remap(warped, gx + f[..., 0], gy + f[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
 
 
