@@ -5,7 +5,8 @@ coordinate arithmetic) round differently on each, so a corpus rendered on one ma
 from the same corpus rendered on another. Here the sampling positions are computed in float64 with
 plain NumPy element-wise arithmetic (no BLAS, no fused multiply-add), turned into OpenCV's own
 fixed-point map format (integer pixel + 1/32-pixel interpolation table index) by exact rounding,
-and resampled by ``cv2.remap``'s integer-only 8-bit paths: bilinear, or bicubic (Keys' a = −0.75) where
+and resampled in integer arithmetic: bilinear by ``cv2.remap``'s integer-only 8-bit path, or bicubic
+(Keys' a = −0.75, written out in NumPy: OpenCV's own rounds differently with and without AVX2) where
 detail must survive — a bilinear sample between pixels averages its neighbours, so each bilinear
 resampling of a face at its own scale removes about 30 % of the mouth's Laplacian variance, a bicubic
 one about 6 % (GRID s4 frames, random sub-pixel offsets).

@@ -21,6 +21,7 @@ Texture arrays are (T, T, 3) uint8 RGB in the frontal texture plane; landmarks (
 """
 from __future__ import annotations
 
+import functools
 import threading
 
 import cv2
@@ -155,15 +156,15 @@ def displacement_field(src_lm: np.ndarray, dst_lm: np.ndarray, size: int, sigma:
     return (np.ascontiguousarray(fine[..., 0] + px[None, :]), np.ascontiguousarray(fine[..., 1] + px[:, None]))
 
 
-_NODES: dict = {}
-
-
+@functools.lru_cache(maxsize=8)
 def _node_coordinates(size: int, step: int) -> tuple[np.ndarray, np.ndarray]:
-    """(size, size) float32 grid-node coordinates of every pixel (node j sits at pixel j·step); cached."""
-    if (size, step) not in _NODES:
-        at = np.arange(size, dtype=np.float32) / step
-        _NODES[size, step] = tuple(np.meshgrid(at, at))
-    return _NODES[size, step]
+    """(size, size) float32 grid-node coordinates of every pixel (node j sits at pixel j·step); cached and
+    read-only (the worker threads share them), like ``pipeline.video.repeats._pixel_grid``."""
+    at = np.arange(size, dtype=np.float32) / step
+    grids = np.meshgrid(at, at)
+    for g in grids:
+        g.setflags(write=False)
+    return grids[0], grids[1]
 
 
 def align_candidates(textures: np.ndarray, src_points: np.ndarray, dst_points: np.ndarray,
