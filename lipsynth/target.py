@@ -25,7 +25,8 @@ from pipeline.params import Params, as_dict
 log = logging.getLogger("lipsynth.target")
 
 PREPROCESS = ("ingest", "landmarks", "frontalize")
-CACHE_FORMAT = 6          # bump when the preprocessing code changes what it stores (6: bicubic crops and textures)
+CACHE_FORMAT = 7          # bump when the preprocessing code changes what it stores (6: bicubic crops and textures;
+                          # 7: 3D models whose lips were fitted as depth rejected)
 
 
 def warm_up_worker() -> None:

@@ -119,6 +119,48 @@ def test_render_back_inverts_the_frontal_warp(geometry):
     assert err < 0.3 * wrong, (err, wrong)
 
 
+def test_render_map_shows_the_visible_sheet_where_the_surface_folds():
+    """A 30 mm step in depth (a lip standing out) seen from below: the surface folds in the view, and
+    its rays meet it up to three times. The map must give every pixel the point nearest the camera;
+    Newton's method alone (the map before) converges to a hidden sheet on part of the fold."""
+    from pipeline.face.geometry import project
+    from stages.composite.render import facing, first_hit, fold_region
+    step = 2.0
+    xs, ys = np.arange(-110, 111, step), np.arange(-80, 221, step)
+    gy = np.broadcast_to(ys[:, None], (len(ys), len(xs)))
+    depth = -30.0 * np.clip((gy - 78.0) / 4.0, 0.0, 1.0)          # below y = 80 mm 30 mm nearer: slope 7.5
+    surface = Surface(depth, xs[0], ys[0], step)
+    K = intrinsics(720, 576, 1.5)
+    rvec, tvec = np.array([-0.3, 0.0, 0.0]), np.array([0.0, -60.0, 600.0])     # pitched: the ramp seen from below
+    xy_ramp = np.array([[0.0, 80.0]])
+    assert facing(xy_ramp, surface, rvec, tvec, K)[0] < 0                                # the ramp is seen from behind
+    box = texture_footprint(WINDOW.grid_points(surface).reshape(-1, 3), rvec, tvec, K, (576, 720))
+    mu, mv = inverse_map(box, surface, WINDOW, rvec, tvec, K, step=4)
+    x0, y0, x1, y1 = box
+    py, px = np.mgrid[y0:y1:4, x0:x1:4]
+    pix = np.column_stack([px.ravel(), py.ravel()]).astype(np.float64)
+    folded = fold_region(pix, surface, WINDOW, rvec, tvec, K, reach=8.0)
+    assert 0 < folded.sum() < len(pix)
+    xy, hit = first_hit(pix, surface, rvec, tvec, K)
+    assert hit.all()
+    z = surface.z(xy[:, 0], xy[:, 1])
+    assert np.abs(project(np.column_stack([xy, z]), rvec, tvec, K) - pix).max() < 0.01   # on the ray
+    # nearest: no other point of the ray between the camera and the hit lies behind the surface
+    R = cv2.Rodrigues(rvec)[0]
+    cam_depth = np.column_stack([xy, z]) @ R[2] + tvec[2]
+    rays = np.column_stack([pix, np.ones(len(pix))]) @ np.linalg.inv(K).T
+    for frac in np.linspace(0.9, 0.999, 12):
+        X = (rays * (frac * cam_depth)[:, None] - tvec) @ R
+        above = X[:, 2] - surface.z(X[:, 0], X[:, 1])
+        assert (above < 0).all() or (above > 0).all()         # all on the camera's side
+    # the rendered map is that of the visible points (texture px) on the folded pixels
+    uv_map = np.column_stack([mu[py - y0, px - x0].ravel(), mv[py - y0, px - x0].ravel()])
+    uv_hit = WINDOW.to_pixels(xy)
+    inside = folded & (uv_hit >= 0).all(1) & (uv_hit <= WINDOW.size - 1).all(1)
+    assert inside.sum() > 10
+    assert np.abs(uv_map[inside] - uv_hit[inside]).max() < 0.05
+
+
 def test_render_map_upsampling_is_aligned_with_its_samples():
     """A coarse map sampled every `step` px, upsampled: an affine function is reproduced at every
     pixel (bilinear is exact on it). Pixel-centre resizing (cv2.resize) shifted it by 1.5 px at step 4."""

@@ -69,3 +69,19 @@ def test_runaway_shapes_are_not_faces(face3d):
     assert model3d._plausible(face3d)
     assert not model3d._plausible(runaway)
     assert not model3d._plausible(model3d._to_canonical(inverted, allow_reflection=False))
+
+
+def test_lips_fitted_as_depth_are_not_a_face(face3d):
+    """The fit of GRID s4 bwif7n: the lower lip 50 mm behind the upper (the mouth's opening taken for
+    depth) — its surface folded at the mouth and rendered the lips over the mouth's interior; brwm8s:
+    the lips 15 mm in front of the nose tip. Both rejected; a face with ordinary lips is kept."""
+    assert model3d._plausible(face3d)
+    sunk = face3d.copy()
+    sunk[[56, 57, 58, 65, 66, 67], 2] += 45.0                    # lower lip pushed back
+    proud = face3d.copy()
+    proud[48:68, 2] = face3d[30, 2] - 10.0                        # lips ahead of the nose tip
+    assert not model3d._plausible(sunk)
+    assert not model3d._plausible(proud)
+    opened = face3d.copy()
+    opened[[56, 57, 58, 65, 66, 67], 2] += 8.0                    # a jaw opened a little: still a face
+    assert model3d._plausible(opened)

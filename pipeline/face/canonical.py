@@ -79,6 +79,22 @@ class TextureWindow:
         return uv * self.mm_per_px + np.array([self.x0, self.y0])
 
 
+def surface_projection(xy: np.ndarray, surface: Surface, M: np.ndarray, m: np.ndarray):
+    """Pixels of the surface points (x, y, f(x, y)) and the exact Jacobian of that projection.
+
+    ``xy`` (N, 2) model mm; the homogeneous pixel is q = M·X + m (M = K·R, m = K·t). Returns (N, 2)
+    pixels and the Jacobian's entries (a, b, c, d) = (∂u/∂x, ∂u/∂y, ∂v/∂x, ∂v/∂y), each (N,) px/mm.
+    """
+    z, zx, zy = surface.z_slopes(xy[:, 0], xy[:, 1])
+    q = np.column_stack([xy, z]) @ M.T + m                   # (N, 3)
+    uv = q[:, :2] / q[:, 2:3]
+    dqx = M[:, 0] + np.outer(zx, M[:, 2])                    # (N, 3) ∂q/∂x
+    dqy = M[:, 1] + np.outer(zy, M[:, 2])
+    a, c = (dqx[:, :2] - uv * dqx[:, 2:3]).T / q[:, 2]       # ∂u/∂x, ∂v/∂x
+    b, d = (dqy[:, :2] - uv * dqy[:, 2:3]).T / q[:, 2]       # ∂u/∂y, ∂v/∂y
+    return uv, (a, b, c, d)
+
+
 def frontal_landmarks(landmarks: np.ndarray, start_xy: np.ndarray, surface: Surface, rvec, tvec,
                       K: np.ndarray, iterations: int = 6) -> np.ndarray:
     """Intersect each landmark's viewing ray with the extended surface.
@@ -102,15 +118,7 @@ def frontal_landmarks(landmarks: np.ndarray, start_xy: np.ndarray, surface: Surf
     m = K @ np.asarray(tvec, np.float64).reshape(3)
     active = np.arange(len(xy))                              # points still moving
     for _ in range(iterations):
-        p = xy[active]
-        z, zx, zy = surface.z_slopes(p[:, 0], p[:, 1])
-        q = np.column_stack([p, z]) @ M.T + m                # (A, 3)
-        uv = q[:, :2] / q[:, 2:3]
-        # Jacobian of the projection of (x, y, z(x, y)) with respect to (x, y), exactly
-        dqx = M[:, 0] + np.outer(zx, M[:, 2])                # (A, 3) ∂q/∂x
-        dqy = M[:, 1] + np.outer(zy, M[:, 2])
-        a, c = (dqx[:, :2] - uv * dqx[:, 2:3]).T / q[:, 2]   # ∂u/∂x, ∂v/∂x
-        b, d = (dqy[:, :2] - uv * dqy[:, 2:3]).T / q[:, 2]   # ∂u/∂y, ∂v/∂y
+        uv, (a, b, c, d) = surface_projection(xy[active], surface, M, m)
         ru, rv = (target[active] - uv).T
         det = a * d - b * c
         det = np.where(np.abs(det) < 1e-12, 1e-12, det)

@@ -4,14 +4,19 @@ The inverse of the frontal warp: for each frame pixel near the face, intersect i
 with the extended face surface (the same geometry the texture was frontalized with) to find the
 canonical point it sees, i.e. the texture pixel to sample. The ray intersection is solved on a
 grid 4× coarser than the frame (the mapping is smooth) and the map is upsampled.
+
+Where the head is turned so that the surface folds over itself in the view (a steep step under
+the nose or at the lips, seen from below), a ray meets the surface up to three times and Newton's
+method may converge to a hidden sheet; those pixels are found (the image of the surface's
+back-facing part) and traced along the ray to the first, visible intersection instead.
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from pipeline.face.geometry import project
-from pipeline.face.canonical import Surface, TextureWindow, frontal_landmarks
+from pipeline.face.geometry import project, rotation
+from pipeline.face.canonical import Surface, TextureWindow, frontal_landmarks, surface_projection
 
 
 def texture_footprint(points: np.ndarray, rvec, tvec, K: np.ndarray, frame_shape, margin: int = 4):
@@ -44,8 +49,74 @@ def inverse_map(box, surface: Surface, window: TextureWindow, rvec, tvec, K: np.
     A, _ = cv2.estimateAffine2D(corners_px, corners_mm)
     start = pix @ A[:, :2].T + A[:, 2]
     xy = frontal_landmarks(pix, start, surface, rvec, tvec, K, iterations=8)
+    folded = fold_region(pix, surface, window, rvec, tvec, K, reach=2.0 * step)
+    if folded.any():
+        hit_xy, hit = first_hit(pix[folded], surface, rvec, tvec, K)
+        xy[np.flatnonzero(folded)[hit]] = hit_xy[hit]
     uv = window.to_pixels(xy).astype(np.float32).reshape(len(ys), len(xs), 2)
     return upsample_grid(uv, step, (y1 - y0, x1 - x0))
+
+
+def facing(xy: np.ndarray, surface: Surface, rvec, tvec, K: np.ndarray) -> np.ndarray:
+    """Determinant of the Jacobian ∂(u, v)/∂(x, y) of the projection of the surface point (x, y, f(x, y))
+    at (N, 2) model points (mm) → (N,) px²/mm². Positive where the surface faces the camera, negative
+    where it is seen from behind (its image folds back)."""
+    M, m = K @ rotation(rvec), K @ np.asarray(tvec, np.float64).reshape(3)
+    _, (a, b, c, d) = surface_projection(np.asarray(xy, np.float64), surface, M, m)
+    return a * d - b * c
+
+
+def fold_region(pix: np.ndarray, surface: Surface, window: TextureWindow, rvec, tvec, K: np.ndarray,
+                reach: float, samples: int = 128) -> np.ndarray:
+    """Which of the (N, 2) frame pixels lie where the texture window's surface folds in the view.
+
+    The window is sampled on a ``samples`` × ``samples`` grid; the image of its back-facing points
+    (``facing`` < 0) is where up to three surface points share a pixel. Returns (N,) bool: the pixels
+    within ``reach`` px of that image's bounding box (all False when nothing folds, the usual case)."""
+    t = np.linspace(0.0, window.size - 1.0, samples)
+    xy = window.to_mm(np.stack(np.meshgrid(t, t), -1).reshape(-1, 2))
+    back = xy[facing(xy, surface, rvec, tvec, K) < 0]
+    if not len(back):
+        return np.zeros(len(pix), bool)
+    uv = project(np.column_stack([back, surface.z(back[:, 0], back[:, 1])]), rvec, tvec, K)
+    lo, hi = uv.min(0) - reach, uv.max(0) + reach
+    return ((pix >= lo) & (pix <= hi)).all(1)
+
+
+def first_hit(pix: np.ndarray, surface: Surface, rvec, tvec, K: np.ndarray, samples: int = 96,
+              refine: int = 24) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest intersection of each (N, 2) frame pixel's viewing ray with the surface.
+
+    Marches along the ray (camera depth t) through the depth range the surface's grid spans at this
+    pose, in ``samples`` steps, to the first change of side, then bisects that step ``refine`` times.
+    Returns (N, 2) model coordinates (mm) and (N,) bool: the ray crossed the surface in that range."""
+    R = rotation(rvec)
+    tvec = np.asarray(tvec, np.float64).reshape(3)
+    H, W = surface.depth.shape
+    gy, gx = np.mgrid[0:H, 0:W]
+    grid = np.column_stack([surface.x0 + surface.step * gx.ravel(), surface.y0 + surface.step * gy.ravel(),
+                            surface.depth.ravel()])
+    depth = grid @ R[2] + tvec[2]                       # camera depth of the surface's grid points (mm)
+    ts = np.linspace(depth.min() - 1.0, depth.max() + 1.0, samples)
+    rays = np.column_stack([pix, np.ones(len(pix))]) @ np.linalg.inv(K).T      # camera point at depth 1
+    origin = -R.T @ tvec                                 # camera centre in model coordinates
+
+    def side(t):                                         # (N, k) height of the ray point above the surface
+        X = origin + (t[..., None] * rays[:, None, :]) @ R   # model coordinates = Rᵀ(t·ray − tvec)
+        return X[..., 2] - surface.z(X[..., 0], X[..., 1])
+
+    s = side(np.broadcast_to(ts, (len(pix), samples)))
+    crossed = np.signbit(s[:, 1:]) != np.signbit(s[:, :1])
+    hit = crossed.any(1)
+    k = np.argmax(crossed, 1)                            # first step that ends on the far side
+    lo, hi = ts[k], ts[k + 1]
+    near = np.signbit(s[:, 0])
+    for _ in range(refine):
+        mid = 0.5 * (lo + hi)
+        same = np.signbit(side(mid[:, None])[:, 0]) == near
+        lo, hi = np.where(same, mid, lo), np.where(same, hi, mid)
+    X = origin + (0.5 * (lo + hi))[:, None] * rays @ R
+    return X[:, :2], hit
 
 
 def upsample_grid(coarse: np.ndarray, step: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

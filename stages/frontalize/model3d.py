@@ -26,6 +26,9 @@ log = logging.getLogger("lipsynth.frontalize")
 
 # Rigid landmarks: upper jaw contour, brows, nose, eye corners (eyelids blink, mouth/jaw move).
 RIGID = np.array([0, 1, 15, 16] + list(range(17, 36)) + [36, 39, 42, 45])
+MOUTH = np.arange(48, 68)
+LIP_MIDLINE = np.array([51, 62, 66, 57])      #: outer and inner lip centres, top to bottom
+MAX_LIP_STEP_MM = 20.0                        #: the prior's mid-line spans 6 mm; an open jaw adds a few
 
 # Anthropometric depth prior (mm behind the nose tip) for the 68 iBUG landmarks of an adult face.
 PRIOR_DEPTH = np.array(
@@ -155,12 +158,17 @@ def _plausible(X: np.ndarray) -> bool:
 
     Bundle adjustment of a short, nearly rigid clip can run off along its unobservable depth
     direction (points 10⁶ mm deep, a depth-inverted or mirrored face) while its own RMS stays low.
+    The lips are fitted after the rigid points with the poses fixed, and their motion (the mouth
+    opens as the head nods) can pass for depth: a fit whose lips stand in front of the nose tip, or
+    whose upper and lower lip are ``MAX_LIP_STEP_MM`` or more apart in depth, is no face either (the
+    surface would fold at the mouth and render the lips over the mouth's interior).
     """
     if not np.all(np.isfinite(X)) or np.abs(X).max() > 300.0:
         return False
     z = X[:, 2]
     return bool(np.ptp(z[RIGID]) < 250.0 and z[30] < min(z[LEO], z[REO]) and z[[0, 16]].mean() > z[30]
-                and X[8, 1] > X[30, 1] > X[27, 1])
+                and X[8, 1] > X[30, 1] > X[27, 1]
+                and z[30] < z[MOUTH].min() and np.ptp(z[LIP_MIDLINE]) < MAX_LIP_STEP_MM)
 
 
 def frame_errors(shape: np.ndarray, observations: list[np.ndarray], cameras: list[np.ndarray]) -> np.ndarray:
