@@ -82,13 +82,15 @@ def upscaled(clip: Path, lines: int) -> Path:
     return out
 
 
-def speak(model: Path, clip: Path, out: Path, params: Path) -> tuple[float, dict]:
+def speak(model: Path, clip: Path, out: Path, params: Path, tracked: bool = False) -> tuple[float, dict]:
     """Run ``lipsynth speak`` (own audio, own target, no re-timing): wall seconds and the texture
-    synthesis phases (thread ms per frame) from its log."""
+    synthesis phases (thread ms per frame) from its log. ``tracked``: the same run with the target's
+    own tracked lips in place of the model's shapes (``bench/speak_oracle.py``)."""
     t0 = time.perf_counter()
-    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "speak", "--model", str(model), "--audio", str(clip),
-                        "--target", str(clip), "--out", str(out), "--no-retime", "--params", str(params),
-                        "--cache", str(WORK / "cache")], cwd=ROOT, capture_output=True, text=True)
+    command = ([sys.executable, str(ROOT / "bench" / "speak_oracle.py")] if tracked else
+               [sys.executable, "-m", "lipsynth.cli", "speak", "--no-retime"])
+    r = subprocess.run([*command, "--model", str(model), "--audio", str(clip), "--target", str(clip), "--out", str(out),
+                        "--params", str(params), "--cache", str(WORK / "cache")], cwd=ROOT, capture_output=True, text=True)
     if r.returncode:
         raise SystemExit(f"speak failed on {clip}: {r.stderr.strip()[-800:]}")
     seconds = time.perf_counter() - t0
@@ -142,11 +144,13 @@ def page(summary: dict) -> str:
              "(the mouths come from the target's own frames: another person's path); every figure is output / the "
              "real video (1 = as the real mouth). Rows named `tex512` store the face finer (`ingest.max_crop_size: "
              "1024`, `frontalize.max_texture_size: 512`; the defaults 448 and 256 store a 1080- or 2160-line face "
-             "smaller than it is filmed). Detail energy and detail flicker measure the band of wavelengths below ≈ IOD/8, motion "
+             "smaller than it is filmed). Rows marked `(tracked lips)` replace the model's mouth shapes by the target's own tracked "
+             "lips (`bench/speak_oracle.py`): what texture synthesis and compositing reach when the shapes are right — the "
+             "gap between a method's two rows is the shape model's share. Detail energy and detail flicker measure the band of wavelengths below ≈ IOD/8, motion "
              "compensated for flicker. The goals: sharpness 0.9–1.1 (green band), flicker at most 1.2 (dashed). Texture ms/frame is the thread time "
              "of candidate search, weighted median, teeth and detail (one run; `bench/synthesize.py` measures speed "
-             "properly); speak frames/s is the whole run's wall time over its frames, the target's preprocessing "
-             "cached (model loading and the self-check included).", "",
+             "properly); speak frames/s is the whole run's wall time over its frames (model loading and the self-check "
+             "included; the first run of a footage also pays the target's preprocessing unless an earlier run cached it).", "",
              "![sharpness and flicker per resolution](img/sharp_steady.png)", "",
              "| footage | method | sharpness | detail energy | flicker | detail flicker | mouth error / static | opening corr | texture ms/frame | speak frames/s |",
              "|---|---|---|---|---|---|---|---|---|---|"]
@@ -171,6 +175,9 @@ def main() -> None:
     ap.add_argument("--model", type=Path, help="use this model for every case (e.g. models/base) and the people's "
                     "source clips from ../shared/data, instead of bench/person_diagnosis.py's models and held-out clips")
     ap.add_argument("--tag", default="", help="suffix of the output videos' names (keeps runs apart)")
+    ap.add_argument("--shapes", nargs="*", default=["model"], choices=["model", "tracked"],
+                    help="mouth shapes: the model's (what users get) and/or the target's own tracked lips "
+                         "(bench/speak_oracle.py: what the texture synthesis and compositing reach with perfect shapes)")
     ap.add_argument("--dry", action="store_true", help="print the rows only; write no results, page or images")
     ap.add_argument("--page-only", action="store_true", help="only redraw the page and chart from results/sharp_steady.json")
     a = ap.parse_args()
@@ -197,17 +204,19 @@ def main() -> None:
         clip = upscaled(clip, lines) if lines else clip
         ref = quality.video_landmarks(clip, lm_params)
         outs = []
-        for method in a.methods:
+        for method, shapes in [(m, sh) for sh in a.shapes for m in a.methods]:
             changes = {sec: {**extra.get(sec, {}), **overrides.get(sec, {})} for sec in {*extra, *overrides}}
             tree = dict(base, **{sec: dict(base[sec], **kv) for sec, kv in changes.items()})
             tree["synthesize"] = dict(tree["synthesize"], detail=method)
             params = WORK / f"params_{method}.yaml"
             params.write_text(yaml.safe_dump(tree, sort_keys=False))
-            out = WORK / f"{case.replace(' ', '_')}_{method}{'_' + a.model.name if a.model else ''}{'_' + a.tag if a.tag else ''}.mp4"
-            seconds, phases = speak(model, clip, out, params)
+            label = method if shapes == "model" else f"{method} (tracked lips)"
+            out = WORK / (f"{case.replace(' ', '_')}_{method}{'_tracked' if shapes == 'tracked' else ''}"
+                          f"{'_' + a.model.name if a.model else ''}{'_' + a.tag if a.tag else ''}.mp4")
+            seconds, phases = speak(model, clip, out, params, tracked=shapes == "tracked")
             q = quality.compare(*quality.video_landmarks(out, lm_params), *ref)
             n = q["frames"]
-            row = dict(case=case, size=f"{ref[0].shape[2]}×{ref[0].shape[1]}", method=method, clip=clip.name,
+            row = dict(case=case, size=f"{ref[0].shape[2]}×{ref[0].shape[1]}", method=label, clip=clip.name,
                        frames=n, frames_per_second=n / seconds,
                        texture_ms=sum(phases.get(k, 0.0) for k in ("candidate_search", "weighted_median", "teeth", "detail")),
                        error_ratio=q["mouth_error_px"] / q["static_mouth_error_px"],

@@ -45,6 +45,11 @@ def oracle_run(blend: float):
             good[ok[ok < n]] = True
             lips[good] = blend * tracked[:n][good[:n]] + (1 - blend) * lips[good]
             print(f"oracle: {good.sum()} of {len(lips)} frames use the tracked lips (blend {blend})")
+            if blend == 1.0:
+                # the tracked lips are in the target store's texture pixels already: no rescaling to the
+                # store's scale, no re-targeting onto the target's mean mouth (those are for a model's shapes)
+                params.synthesize.retarget = "never"
+                return dict(mouth, lip_points=lips.astype(np.float32), iod_px=0.0)
             return dict(mouth, lip_points=lips.astype(np.float32))
 
         if mouth is not None:                   # speak predicted the shapes already (during preprocessing)

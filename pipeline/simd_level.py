@@ -1,11 +1,13 @@
 """One SIMD level for every numeric library, so a stage writes the same bytes on any x86-64 CPU with AVX2.
 
 NumPy, OpenCV, PyTorch (its ATen kernels, MKL and oneDNN), CTranslate2, OpenBLAS and x264 each pick their
-kernels at run time from what the CPU offers. Kernels of different widths add floats in different orders, so a CPU with
-AVX-512 would write outputs that differ in the last bits from an AVX2 CPU's — and training amplifies those bits
-until every downstream DVC hash differs. On a CPU with AVX-512 this caps each library at the AVX2 level
-(x86-64-v3), the level the committed ``dvc.lock`` is made on. It runs when ``pipeline`` is first imported, before
-NumPy is: the libraries read these variables once, when they load. A variable the user has set is left alone.
+kernels at run time from what the CPU offers — by width, and some by vendor (MKL and CTranslate2 take other
+paths on AMD than on Intel). Kernels that differ add floats in different orders, so a CPU with AVX-512, or of
+another vendor, would write outputs that differ in the last bits — and training amplifies those bits until every
+downstream DVC hash differs. On every CPU with AVX2 this holds each library at one set of kernels: AVX2
+(x86-64-v3) for those that dispatch by width, MKL's vendor-neutral branch, and the same backends on every
+vendor. It runs when ``pipeline`` is first imported, before NumPy is: the libraries read these variables once,
+when they load. A variable the user has set is left alone.
 
 CPUs below AVX2 are not capped up (they cannot be): there the first stages (synthetic speaker, ingest,
 landmarks) still write the same bytes — they avoid float kernels whose results depend on the SIMD width
@@ -15,18 +17,26 @@ import os
 
 AVX512_SKX = {"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
 
-# each library's own switch, capping it at AVX2 (read when the library loads)
+# each library's own switch, read when the library loads: the same kernels on every x86-64 CPU with AVX2,
+# whatever its vendor or its wider units
 AVX2_CAP = {
-    "NPY_DISABLE_CPU_FEATURES": "X86_V4",      # NumPy ≥ 2.4: its AVX-512 dispatch group (sorts, math loops)
     "ATEN_CPU_CAPABILITY": "avx2",             # PyTorch's vectorised ATen kernels
-    "MKL_CBWR": "AVX2",                        # Intel MKL (PyTorch's BLAS, CTranslate2): the AVX2 code branch
+    # Intel MKL (PyTorch's and CTranslate2's matrix products): its one branch that Intel documents as giving
+    # the same results on Intel and Intel-compatible (AMD) CPUs — SSE2 without rcpps/rsqrtps. The AVX2
+    # branch exists on Intel CPUs only (elsewhere MKL quietly falls back to its AUTO dispatch).
+    "MKL_CBWR": "COMPATIBLE",
+    "CT2_USE_MKL": "1",                        # CTranslate2 (the Whisper encoder) takes MKL on AMD too (else oneDNN)
     "ONEDNN_MAX_CPU_ISA": "AVX2",              # oneDNN (PyTorch's convolutions)
-    "CT2_FORCE_CPU_ISA": "AVX2",               # CTranslate2 (the Whisper encoder)
-    "OPENBLAS_CORETYPE": "Haswell",            # OpenBLAS inside NumPy and SciPy wheels: its AVX2 kernels
+    "CT2_FORCE_CPU_ISA": "AVX2",               # CTranslate2's own kernels
+    "OPENBLAS_CORETYPE": "Haswell",            # OpenBLAS inside NumPy and SciPy wheels (Zen would get its own blocking)
     # x264 (inside PyAV's FFmpeg) reads no variable: our writers pass this to its ``asm`` option (x264_params).
     # Its AVX-512 kernels change the bitstream (measured: the demo's synthetic speaker clips differ from the
     # AVX2 machine's unless x264 is held at this list, what it detects on an AVX2 CPU).
     "LIPSYNTH_X264_ASM": "MMX2,SSE2Fast,SSSE3,SSE4.2,AVX,FMA3,BMI2,AVX2",
+}
+# switches that name a feature group, set only on a CPU that has it (naming one it lacks warns)
+AVX512_OFF = {
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4",      # NumPy ≥ 2.4: its AVX-512 dispatch group (sorts, math loops)
 }
 
 
@@ -43,10 +53,12 @@ def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> set[str]:
 
 
 def cap_for(flags: set[str]) -> dict[str, str]:
-    """The environment that caps every library at AVX2 on a CPU with these flags ({} when it has no AVX-512)."""
-    if "avx2" not in flags or "avx512f" not in flags:
+    """The environment that holds every library at its AVX2 kernels on a CPU with these flags ({} below AVX2)."""
+    if "avx2" not in flags:
         return {}
     cap = dict(AVX2_CAP)
+    if "avx512f" in flags:
+        cap.update(AVX512_OFF)
     if AVX512_SKX <= flags:                    # OpenCV dispatches one AVX-512 level; naming one the CPU lacks warns
         cap["OPENCV_CPU_DISABLE"] = "AVX512-SKX"
     return cap

@@ -1,4 +1,4 @@
-"""pipeline.simd_level: the AVX2 cap is set on AVX-512 CPUs only, never over a user's value, and before NumPy loads."""
+"""pipeline.simd_level: one set of kernels on every AVX2 CPU (AVX-512 turned off where present), never over a user's value, and before NumPy loads."""
 import ast
 import subprocess
 import sys
@@ -11,12 +11,24 @@ SKX = {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512cd", "avx512bw", "avx51
 
 def test_an_avx512_cpu_is_capped_at_avx2_in_every_library():
     cap = cap_for(SKX)
-    assert cap == dict(AVX2_CAP, OPENCV_CPU_DISABLE="AVX512-SKX")
+    assert cap == dict(AVX2_CAP, NPY_DISABLE_CPU_FEATURES="X86_V4", OPENCV_CPU_DISABLE="AVX512-SKX")
     assert {"NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "MKL_CBWR", "ONEDNN_MAX_CPU_ISA"} <= set(cap)
 
 
-def test_cpus_without_avx512_or_without_avx2_are_left_alone():
-    assert cap_for({"sse4_2", "avx", "avx2"}) == {}
+def test_an_avx2_cpu_of_any_vendor_gets_the_same_kernels():
+    """An AMD EPYC (AVX2, no AVX-512) and an AVX-512 Xeon run the same MKL branch and CTranslate2 backend:
+    MKL's vendor-neutral branch (its AVX2 one exists on Intel only), MKL in CTranslate2 on AMD too (its
+    default there is oneDNN), OpenBLAS's Haswell kernels (Zen has its own blocking)."""
+    amd, intel = cap_for({"sse4_2", "avx", "avx2", "fma"}), cap_for(SKX)
+    shared = {"MKL_CBWR", "CT2_USE_MKL", "OPENBLAS_CORETYPE", "ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA",
+              "CT2_FORCE_CPU_ISA", "LIPSYNTH_X264_ASM"}
+    assert shared <= set(amd) and all(amd[k] == intel[k] for k in shared)
+    assert amd["MKL_CBWR"] == "COMPATIBLE" and amd["CT2_USE_MKL"] == "1"
+    assert "NPY_DISABLE_CPU_FEATURES" not in amd and "OPENCV_CPU_DISABLE" not in amd   # nothing to turn off
+
+
+def test_cpus_without_avx2_are_left_alone():
+    assert cap_for({"sse4_2", "avx"}) == {}
     assert cap_for({"sse4_2", "avx512f"}) == {}                 # (no such CPU, but never cap *up*)
     assert "OPENCV_CPU_DISABLE" not in cap_for({"avx2", "avx512f"})     # Xeon Phi: OpenCV would warn
 
@@ -25,7 +37,7 @@ def test_a_value_the_user_set_is_kept():
     env = {"ATEN_CPU_CAPABILITY": "default"}
     added = pin_avx2(env, SKX)
     assert env["ATEN_CPU_CAPABILITY"] == "default" and "ATEN_CPU_CAPABILITY" not in added
-    assert env["MKL_CBWR"] == "AVX2"
+    assert env["MKL_CBWR"] == "COMPATIBLE"
 
 
 def test_native_lifts_the_cap():

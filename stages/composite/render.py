@@ -67,7 +67,7 @@ def facing(xy: np.ndarray, surface: Surface, rvec, tvec, K: np.ndarray) -> np.nd
 
 
 def fold_region(pix: np.ndarray, surface: Surface, window: TextureWindow, rvec, tvec, K: np.ndarray,
-                reach: float, samples: int = 128) -> np.ndarray:
+                reach: float, samples: int = 64) -> np.ndarray:
     """Which of the (N, 2) frame pixels lie where the texture window's surface folds in the view.
 
     The window is sampled on a ``samples`` × ``samples`` grid; the image of its back-facing points
