@@ -19,10 +19,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -31,6 +29,7 @@ import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
+from bench.bench_results import publish, stamp  # noqa: E402
 from lipsynth import lipsync_quality as quality  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 
@@ -123,15 +122,9 @@ def main() -> None:
     print(json.dumps(medians, indent=1))
     if a.dry:
         return
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    summary = dict(commit=commit, date=time.strftime("%Y-%m-%d"), machine=f"{platform.processor() or platform.machine()}, "
-                   f"{os.cpu_count()} cores", model=os.path.relpath(a.model, ROOT), pairs=a.pairs, settings=a.set,
+    summary = dict(stamp(), model=os.path.relpath(a.model, ROOT), pairs=a.pairs, settings=a.set,
                    medians=medians, rows=rows)
-    (ROOT / "results").mkdir(exist_ok=True)
-    (ROOT / "results" / "cross_clip.json").write_text(json.dumps(summary, indent=1) + "\n")
-    (ROOT / "docs" / "cross_clip.md").write_text(page(summary) + "\n")
-    print("wrote results/cross_clip.json, docs/cross_clip.md")
-
+    publish("cross_clip", summary, page(summary))
 
 if __name__ == "__main__":
     main()

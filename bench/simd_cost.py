@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -30,6 +29,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+
+from bench.bench_results import publish, stamp  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 AUDIO = ROOT.parent / "shared" / "data" / "hdtf" / "RD_Radio31_000.wav"
@@ -98,14 +99,8 @@ def main() -> None:
         row = dict(branch=branch, **json.loads(r.stdout.strip().splitlines()[-1]))
         rows.append(row)
         print(json.dumps(row), flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    summary = dict(commit=commit, date=time.strftime("%Y-%m-%d"),
-                   machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores", rows=rows)
-    (ROOT / "results").mkdir(exist_ok=True)
-    (ROOT / "results" / "simd_cost.json").write_text(json.dumps(summary, indent=1) + "\n")
-    (ROOT / "docs" / "simd_cost.md").write_text(page(summary) + "\n")
-    print("wrote results/simd_cost.json, docs/simd_cost.md")
-
+    summary = dict(stamp(), rows=rows)
+    publish("simd_cost", summary, page(summary))
 
 if __name__ == "__main__":
     main()

@@ -16,10 +16,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -30,6 +28,7 @@ import cv2  # noqa: E402
 import yaml  # noqa: E402
 
 import sharp_steady as ss  # noqa: E402
+from bench.bench_results import publish, stamp  # noqa: E402
 from lipsynth import lipsync_quality as quality  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 
@@ -107,15 +106,10 @@ def main() -> None:
             print(json.dumps(row), flush=True)
         strip = ss.mouth_strip([clip, *outs], q["mouth_box"])
         cv2.imwrite(str(ROOT / "docs" / "img" / f"then_and_now_{case}.jpg"), strip[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
-    now = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    summary = dict(then=a.then, now=now, date=time.strftime("%Y-%m-%d"), model=str(a.model.relative_to(ROOT))
-                   if a.model.resolve().is_relative_to(ROOT) else str(a.model),
-                   machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores", rows=rows)
-    (ROOT / "results").mkdir(exist_ok=True)
-    (ROOT / "results" / "then_and_now.json").write_text(json.dumps(summary, indent=1) + "\n")
-    (ROOT / "docs" / "then_and_now.md").write_text(page(summary) + "\n")
-    print("wrote results/then_and_now.json, docs/then_and_now.md")
-
+    st = stamp()
+    summary = dict(then=a.then, now=st["commit"], date=st["date"], machine=st["machine"],
+                   model=os.path.relpath(a.model, ROOT), rows=rows)
+    publish("then_and_now", summary, page(summary))
 
 if __name__ == "__main__":
     main()
