@@ -21,13 +21,12 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import cv2  # noqa: E402
 import yaml  # noqa: E402
 
-import sharp_steady as ss  # noqa: E402
+from bench import sharp_steady as ss  # noqa: E402
 from bench.bench_results import publish, stamp  # noqa: E402
 from lipsynth import lipsync_quality as quality  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
