@@ -57,10 +57,10 @@ CASES = {
     "1080": (DIAG / "hdtf_aoc" / "model", DIAG / "hdtf_aoc" / "w" / "footage" / "WDA_AlexandriaOcasioCortez_000_s002.mp4", 1080),
     "2160": (DIAG / "hdtf_aoc" / "model", DIAG / "hdtf_aoc" / "w" / "footage" / "WDA_AlexandriaOcasioCortez_000_s002.mp4", 2160),
 }
-# the same footage with the texture following the face further (the defaults cap the stored crop at 448 px and
-# the texture at 256 px: at 1080 and 2160 lines the face is stored smaller than it is filmed)
-FINER = {"ingest": {"max_crop_size": 1024}, "frontalize": {"max_texture_size": 512}}
-VARIANTS = {"1080 tex512": ("1080", FINER), "2160 tex512": ("2160", FINER)}
+# the same footage with the face stored as small as before the texture followed the face to 512 px (crop capped
+# at 448 px, texture at 256 px: at 1080 and 2160 lines the face is stored smaller than it is filmed)
+COARSER = {"ingest": {"max_crop_size": 448}, "frontalize": {"max_texture_size": 256}}
+VARIANTS = {"1080 tex256": ("1080", COARSER), "2160 tex256": ("2160", COARSER)}
 # the same people's source footage, for ``--model`` (a model of your choice instead of the diagnosis ones)
 SOURCES = {"256": SHARED / "lieu" / "lieu_60s.mp4", "512": SHARED / "hdtf" / "WDA_AlexandriaOcasioCortez_000.mp4",
            "720x576": SHARED / "grid_s4" / "brwt1n.mp4", "1080": SHARED / "hdtf" / "WDA_AlexandriaOcasioCortez_000.mp4",
@@ -142,9 +142,10 @@ def page(summary: dict) -> str:
              "`bench/sharp_steady.py`: `lipsynth speak` with each clip's own audio into the clip, no "
              f"re-timing, once per `synthesize.detail`, model `{summary.get('model', 'runs/diagnosis/<person>/model')}` "
              "(the mouths come from the target's own frames: another person's path); every figure is output / the "
-             "real video (1 = as the real mouth). Rows named `tex512` store the face finer (`ingest.max_crop_size: "
-             "1024`, `frontalize.max_texture_size: 512`; the defaults 448 and 256 store a 1080- or 2160-line face "
-             "smaller than it is filmed). Rows marked `(tracked lips)` replace the model's mouth shapes by the target's own tracked "
+             "real video (1 = as the real mouth). Textures follow the face up to 512 px (`frontalize.max_texture_size`; "
+             "the weighted median runs at ≤ 256 px, `synthesize.median_max_size`); rows named `tex256` store the face "
+             "as coarsely as the former defaults (`ingest.max_crop_size: 448`, `frontalize.max_texture_size: 256`), "
+             "smaller than a 1080- or 2160-line face is filmed. Rows marked `(tracked lips)` replace the model's mouth shapes by the target's own tracked "
              "lips (`bench/speak_oracle.py`): what texture synthesis and compositing reach when the shapes are right — the "
              "gap between a method's two rows is the shape model's share. Detail energy and detail flicker measure the band of wavelengths below ≈ IOD/8, motion "
              "compensated for flicker. The goals: sharpness 0.9–1.1 (green band), flicker at most 1.2 (dashed). Texture ms/frame is the thread time "

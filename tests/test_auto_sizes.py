@@ -23,7 +23,9 @@ def test_texture_is_as_fine_as_the_crop_and_bounded():
     p = Frontalize()
     assert auto_texture_size(62.0, p) == 128                         # 360×288: 110 px for 160 mm → the minimum
     assert auto_texture_size(119.0, p) == 208                        # 160 mm × 119 / 90 = 211.6 → 208
-    assert auto_texture_size(200.0, p) == 256                        # capped at max_texture_size
+    assert auto_texture_size(200.0, p) == 352                        # a 1080-line face: 355.6 → 352
+    assert auto_texture_size(400.0, p) == 512                        # capped at max_texture_size
+    assert auto_texture_size(200.0, Frontalize(max_texture_size=256)) == 256
     assert auto_texture_size(float("nan"), p) == 128
     wide = Frontalize(texture_x_mm=[-40, 40])                       # half the window → half the pixels
     assert auto_texture_size(119.0, wide) == 128 and auto_texture_size(240.0, wide) == 208

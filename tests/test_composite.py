@@ -195,3 +195,16 @@ def test_geometry_cache_reuses_frames_and_stays_within_its_budget(monkeypatch):
     assert calls == [0, 1, 2, 3, 1]                         # 0 kept (recently used), 1 evicted by 3, then re-made
     assert cache.used <= 3 * one and len(cache.items) == 3
     assert cache.hits == 2 and cache.misses == 5
+
+
+def test_jaw_correction_of_a_large_texture_uses_the_flow_of_a_smaller_copy(landmarks_uv):
+    """At 512 px the flow is found at 256 px (``flow_max``) and scaled up: the jaw still lands on the target."""
+    face = cv2.resize(skimage.data.astronaut()[60:260, 140:340], (512, 512), interpolation=cv2.INTER_CUBIC)
+    shift = np.float32([[1, 0, 0], [0, 1, 12]])                # synthesized chin 12 px (3 at 128) too low
+    synth = cv2.warpAffine(face, shift, (512, 512), borderMode=cv2.BORDER_REFLECT)
+    band = jaw_band(4 * landmarks_uv, 512, 24.0)
+    fixed = jaw_correction(synth, face, band, flow_max=256)
+    near, far = band > 0.6, band < 1e-3
+    err = lambda img, m: np.abs(img.astype(float) - face.astype(float))[m].mean()       # noqa: E731
+    assert err(fixed, near) < 0.5 * err(synth, near), (err(fixed, near), err(synth, near))
+    assert np.abs(fixed.astype(int) - synth)[far].mean() < 1.0

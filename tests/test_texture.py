@@ -312,3 +312,37 @@ def test_teeth_detail_on_real_frontal_textures(grid_preprocessed):
     assert np.abs(out.astype(int) - plain)[~th._polygon(th._lip20(info["lip_points"])[th.OUTER],
                                                          plain.shape[:2], grow_px=12).astype(bool)].max() == 0
     assert lap_var(out, teeth) > 1.5 * lap_var(plain, teeth)
+
+
+def test_median_at_half_size_is_the_full_size_median_upsampled(astronaut_mouth):
+    """``synthesize.median_max_size``: candidates area-averaged to half size give a median that, upsampled,
+    matches the full-size median's low band (its shape and shading), at a quarter of the values sorted."""
+    from pipeline.io.store import i420_to_rgb, resize_i420, rgb_to_i420
+    from stages.synthesize.synthesize import median_pool
+    base, lip = astronaut_mouth
+    big = cv2.resize(base, (256, 256), interpolation=cv2.INTER_CUBIC)
+    rng = np.random.default_rng(2)
+    offs = rng.uniform(-4, 4, (40, 2))
+    i420 = np.stack([rgb_to_i420(cv2.warpAffine(big, np.float32([[1, 0, du], [0, 1, dv]]), (256, 256),
+                                                borderMode=cv2.BORDER_REFLECT)) for du, dv in offs])
+    small, scale = median_pool(i420, 128)
+    assert small.shape == (40, 192, 128) and scale == 0.5
+    same, one = median_pool(i420, 256)
+    assert same is i420 and one == 1.0
+    # each plane area-averaged: the small texture is the big one's RGB resized (up to I420 rounding)
+    ref = cv2.resize(i420_to_rgb(i420[0]), (128, 128), interpolation=cv2.INTER_AREA).astype(float)
+    assert np.abs(i420_to_rgb(small[0]) - ref).mean() < 2.0
+    with pytest.raises(ValueError):
+        resize_i420(i420[0], 126)
+    lm = np.zeros((40, 68, 2), np.float32)
+    lm[:, 48:] = 2 * lip + offs[:, None].astype(np.float32)
+    shapes = lm[:, 48:][:, LIP18]
+    plain = dict(unsharp_amount=0.0)
+    full, info = tx.synthesize_texture(2 * lip[LIP18], shapes, lambda ix: i420[ix], lm, n=20, params=plain)
+    half, info_half = tx.synthesize_texture(2 * lip[LIP18], shapes, lambda ix: small[ix], lm, n=20, params=plain,
+                                            size=256)
+    assert half.shape == full.shape == (256, 256, 3)
+    np.testing.assert_array_equal(info_half["indices"], info["indices"])
+    low = lambda im: cv2.GaussianBlur(im.astype(np.float32), (0, 0), 4.0)             # noqa: E731
+    assert np.abs(low(half) - low(full)).mean() < 2.0
+    assert np.abs(half.astype(float) - full).mean() > 0.2      # not the full-size median itself: detail is lost

@@ -126,3 +126,53 @@ def test_detail_measures_see_detail_and_not_motion():
     soft = np.stack([cv2.GaussianBlur(f, (0, 0), 2.0) for f in moving])
     assert detail_flicker(moving, box, 1.5) < 0.5 * detail_flicker(noisy, box, 1.5)     # motion is not flicker
     assert detail_energy(soft, box, 1.5) < 0.3 * detail_energy(moving, box, 1.5)         # blur loses the band
+
+
+def test_a_large_candidate_is_aligned_through_the_flow_of_smaller_copies():
+    """Above ``flow_max`` the flow runs on area-averaged copies and the two warps are composed into one
+    resampling: a 384 px candidate moved by a smooth field lands on the target about as well as with the
+    flow at full size, and far better than with the landmarks alone (which here know nothing of the motion)."""
+    size = 384
+    target = np.dstack([cv2.resize(blobs(seed=s), (size, size), interpolation=cv2.INTER_CUBIC) for s in (1, 2, 3)])
+    gy, gx = np.mgrid[0:size, 0:size].astype(np.float32)
+    bend = 4.0 * np.sin(gx / size * np.pi) * np.sin(gy / size * np.pi)            # ≤ 4 px, smooth
+    candidate = cv2.remap(target, gx - bend, gy + 0.5 * bend, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    lm = np.tile([size / 2, size / 2], (68, 1)) + np.random.default_rng(1).normal(0, 30, (68, 2))
+    err = lambda im: np.abs(im.astype(float) - target)[40:-40, 40:-40].mean()       # noqa: E731
+    small = tb.align_to(candidate, lm, target, lm, sigma=24.0, flow_max=192)
+    full = tb.align_to(candidate, lm, target, lm, sigma=24.0, flow_max=384)
+    none = tb.align_to(candidate, lm, target, lm, sigma=24.0, flow=False)
+    assert err(full) < 0.1 * err(none), (err(full), err(none))
+    assert err(small) < 0.25 * err(none), (err(small), err(none))     # within 2 grey levels (of ≈ 7.5 unaligned)
+
+
+def test_the_wide_band_split_at_half_size_matches_the_full_size_blur():
+    img = np.dstack([cv2.resize(blobs(seed=s), (256, 256), interpolation=cv2.INTER_CUBIC) for s in (1, 2, 3)])
+    low, high = tb.split_bands(img, 8.0)                                            # σ ≥ 6: half size
+    ref = cv2.GaussianBlur(img.astype(np.float32), (0, 0), 8.0)
+    np.testing.assert_allclose(low + high, img, atol=1e-3)
+    assert np.abs(low - ref)[16:-16, 16:-16].max() < 1.5
+
+
+def test_a_cross_fade_keeps_the_detail_energy_of_its_sources():
+    """Half-way through a switch, the blend of two frames' (uncorrelated) details keeps their energy instead of
+    losing half of it; the same frame blended with itself is left as it is."""
+    rng = np.random.default_rng(4)
+    grain = lambda: np.clip(128 + rng.normal(0, 20, (96, 96, 3)), 0, 255).astype(np.uint8)     # noqa: E731
+    a, b = grain(), grain()
+    median = np.full((96, 96, 3), 128, np.uint8)
+    lm = np.tile([48.0, 48.0], (68, 1)) + np.random.default_rng(0).normal(0, 10, (68, 2))
+    energy = lambda im: np.mean(np.square(im.astype(float) - 128)[8:-8, 8:-8])                  # noqa: E731
+    one = tb.two_band(median, lm, [(a, lm, 1.0)], band_sigma=2.0, warp_sigma=8.0, flow=False)
+    half = tb.two_band(median, lm, [(a, lm, 0.5), (b, lm, 0.5)], band_sigma=2.0, warp_sigma=8.0, flow=False)
+    assert energy(half) == pytest.approx(energy(one), rel=0.1), (energy(half), energy(one))    # a plain sum: ½
+    same = tb.two_band(median, lm, [(a, lm, 0.5), (a, lm, 0.5)], band_sigma=2.0, warp_sigma=8.0, flow=False)
+    assert np.abs(same.astype(int) - one).max() <= 1
+
+
+def test_auto_takes_two_bands_for_large_textures_only():
+    from stages.synthesize.synthesize import TWO_BAND_FROM, detail_method
+    assert detail_method("auto", 128) == "median"                  # GRID s1, the synthetic speaker
+    assert detail_method("auto", 192) == "two_band"                # GRID s4 720×576
+    assert detail_method("auto", TWO_BAND_FROM) == "two_band" and detail_method("auto", TWO_BAND_FROM - 16) == "median"
+    assert detail_method("median", 512) == "median" and detail_method("two_band", 128) == "two_band"

@@ -187,6 +187,21 @@ def i420_to_rgb(i420: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(i420), cv2.COLOR_YUV2RGB_I420)
 
 
+def resize_i420(i420: np.ndarray, size: int) -> np.ndarray:
+    """(3S/2, S) I420 → (3·size/2, size) I420 uint8, each plane resized by area averaging (size a multiple of 4)."""
+    import cv2
+    s = i420.shape[1]
+    if size % 4 or size < 4:
+        raise ValueError(f"resize_i420: size {size} must be a positive multiple of 4")
+    if size == s:
+        return np.array(i420, copy=True)
+    h, q = s // 2, size // 2
+    y = cv2.resize(np.ascontiguousarray(i420[:s]), (size, size), interpolation=cv2.INTER_AREA)
+    uv = [cv2.resize(np.ascontiguousarray(i420[s + k * h // 2: s + (k + 1) * h // 2]).reshape(h, h), (q, q),
+                     interpolation=cv2.INTER_AREA).reshape(q // 2, size) for k in range(2)]
+    return np.concatenate([y, *uv])
+
+
 def take(array, rows: np.ndarray) -> np.ndarray:
     """``array[rows]`` for any row indices, read as runs of consecutive rows (one slice per run).
 

@@ -81,8 +81,8 @@ class Ingest(Section):
         metadata={"help": "output store: face crops, 16 kHz audio, MFCC features"})
     crop_size: int | str = field(default="auto",
         metadata={"help": "stored square face crop side (px); auto: crop_scale × the face width found on a few key frames, ≥ 224"})
-    max_crop_size: int = field(default=448,
-        metadata={"help": "largest crop side auto may choose (px)"})
+    max_crop_size: int = field(default=1024,
+        metadata={"help": "largest crop side auto may choose (px): a face filmed larger is stored downsampled"})
     crop_scale: float = field(default=2.0,
         metadata={"help": "crop side / detected face-box width"})
     crop_shift_down: float = field(default=0.3,
@@ -161,8 +161,9 @@ class Frontalize(Section):
         metadata={"help": "Eq. 8 soft-constraint weight of ∇f* = 0 on the grid boundary", "advanced": True})
     texture_size: int | str = field(default="auto",
         metadata={"help": "frontal texture side N (px); auto: as fine as the face in the stored crops, ≥ 128; px-valued synthesize/composite params scale with N/128"})
-    max_texture_size: int = field(default=256,
-        metadata={"help": "largest texture side auto may choose (px; synthesis cost grows with N²)", "min": 64})
+    max_texture_size: int = field(default=512,
+        metadata={"help": "largest texture side auto may choose (px): the texture follows the face up to this "
+                          "(the weighted median runs at most at synthesize.median_max_size)", "min": 64})
     texture_x_mm: list = field(default_factory=lambda: [-80, 80],
         metadata={"help": "lower-face texture window across, [min, max] mm from the eye midpoint"})
     texture_y_mm: list = field(default_factory=lambda: [20, 180],

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .section import Section
+from .section import Section, bad
 
 
 @dataclass
@@ -58,8 +58,8 @@ class Synthesize(Section):
         metadata={"help": "§3.2 unsharp mask of the mouth region: Gaussian σ (px)"})
     unsharp_amount: float = field(default=0.25,
         metadata={"help": "§3.2 unsharp mask of the mouth region: amount a in I + a (I − G*I)"})
-    detail: str = field(default="median",
-        metadata={"help": "median: §3.2 (weighted median, teeth proxy, unsharp) | aligned: candidates warped onto the lips first | two_band: median + a real frame's detail"})
+    detail: str = field(default="auto",
+        metadata={"help": "median: §3.2 (weighted median, teeth, unsharp) | aligned: candidates warped first | two_band: + a real frame's detail | auto: two_band from 160 px"})
     detail_candidates: int = field(default=8,
         metadata={"help": "two_band: nearest candidates per frame the Viterbi picks the detail source from", "min": 1})
     detail_switch_cost: float = field(default=6.0,
@@ -72,6 +72,9 @@ class Synthesize(Section):
         metadata={"help": "two_band: σ (px at texture 128) splitting the median's low band from the real frame's detail", "min": 0.3})
     detail_warp_px: float = field(default=8.0,
         metadata={"help": "aligned, two_band: reach σ (px at texture 128) of the landmark warps (candidates, detail source)", "min": 1.0})
+    median_max_size: int = field(default=256,
+        metadata={"help": "the weighted median runs at most at this texture size (px, multiple of 16), then is upsampled; "
+                          "two_band's detail keeps the full size", "min": 64})
     min_target_fraction: float = field(default=0.5,
         metadata={"help": "a target with a face in a smaller share of its frames is refused", "min": 0, "max": 1})
     threads: int = field(default=2,
@@ -81,7 +84,12 @@ class Synthesize(Section):
     emotion: int | str | None = field(default=None,
         metadata={"help": "Karras models only: a mined emotion K, or K1:K2:t to interpolate (null: the model's default)"})
 
-    CHOICES = {"retarget": ("auto", "always", "never"), "detail": ("median", "aligned", "two_band")}
+    CHOICES = {"retarget": ("auto", "always", "never"), "detail": ("auto", "median", "aligned", "two_band")}
+
+    def validate(self) -> None:
+        super().validate()
+        if self.median_max_size % 16:
+            raise bad("median_max_size", self.median_max_size, "must be a multiple of 16 (I420 textures)")
 
 
 @dataclass

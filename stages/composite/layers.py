@@ -69,18 +69,26 @@ def jaw_band(landmarks_uv: np.ndarray, size: int, width: float) -> np.ndarray:
     return np.exp(-0.5 * (dist / width) ** 2).astype(np.float32)
 
 
-def jaw_correction(synth_rgb: np.ndarray, target_rgb: np.ndarray, band: np.ndarray) -> np.ndarray:
+def jaw_correction(synth_rgb: np.ndarray, target_rgb: np.ndarray, band: np.ndarray,
+                   flow_max: int = 256) -> np.ndarray:
     """Warp the synthesized texture so its jawline meets the target's (§3.4.1, Fig. 7).
 
     Dense optical flow (DIS) from the target texture to the synthesized one gives, for every
     target pixel p, where its content sits in the synthesized texture (p + f(p)); the flow is
     masked by the jaw band and the synthesized texture is resampled at p + band(p)·f(p).
+    Textures larger than ``flow_max`` px get the flow of their area-averaged copies at that size,
+    upsampled (the jaw's misfit is smooth; the flow's cost grows with T²).
     """
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    T = synth_rgb.shape[0]
     g_t = cv2.cvtColor(target_rgb, cv2.COLOR_RGB2GRAY)
     g_s = cv2.cvtColor(synth_rgb, cv2.COLOR_RGB2GRAY)
-    flow = dis.calc(g_t, g_s, None)
-    T = synth_rgb.shape[0]
+    if T > flow_max:
+        small = lambda g: cv2.resize(g, (flow_max, flow_max), interpolation=cv2.INTER_AREA)    # noqa: E731
+        flow = cv2.resize(dis.calc(small(g_t), small(g_s), None), (T, T), interpolation=cv2.INTER_LINEAR)
+        flow *= T / flow_max
+    else:
+        flow = dis.calc(g_t, g_s, None)
     gy, gx = np.mgrid[0:T, 0:T].astype(np.float32)
     mx = gx + band * flow[..., 0]
     my = gy + band * flow[..., 1]

@@ -207,7 +207,8 @@ def candidate_search(target_shape: np.ndarray, shapes: np.ndarray, n: int = 50, 
 def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture: Callable,
                        frontal_landmarks: np.ndarray, n: int = 50,
                        alpha: float = 0.9, proxies: dict | None = None,
-                       params: dict | None = None, search: dict | None = None) -> tuple[np.ndarray, dict]:
+                       params: dict | None = None, search: dict | None = None,
+                       size: int | None = None) -> tuple[np.ndarray, dict]:
     """One output texture from one mouth shape (§3.2): candidates → σ → weights → weighted
     median → teeth enhancement + unsharp masking.
 
@@ -226,6 +227,9 @@ def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture
     params : overrides of s_max, v_min, feather_px, unsharp_sigma, unsharp_amount
         (sigmas/strength live in ``proxies``).
     search : this frame's ``candidate_search`` when the caller has it already (it is not repeated).
+    size : texture px T of ``frontal_landmarks`` and of the result, when ``get_texture`` returns smaller
+        textures (``synthesize.median_max_size``): the median is upsampled (bicubic) to it before the teeth
+        and the unsharp mask. None: the textures' own size.
 
     Returns
     -------
@@ -245,6 +249,8 @@ def synthesize_texture(target_shape: np.ndarray, shapes: np.ndarray, get_texture
     w = weights(s["d2"], sigma)
     t1 = time.perf_counter()
     median = _rgb(weighted_median(get_texture(idx), w))
+    if size is not None and median.shape[0] != size:
+        median = cv2.resize(median, (size, size), interpolation=cv2.INTER_CUBIC)
     t2 = time.perf_counter()
     lm = weighted_lip_points(np.asarray(frontal_landmarks)[idx], w)
     rgb = apply_teeth_detail(median, lm[48:68], proxies, None, p["s_max"], p["v_min"], p["feather_px"],

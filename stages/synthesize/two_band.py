@@ -10,12 +10,17 @@ frame's lip-shape distance in units of that output frame's σ² (−log of its E
 transition cost is 0 when the next source is the next frame of the same video (real motion),
 ``hold_cost`` when it stays on one frame, and ``switch_cost`` otherwise. The states of a frame
 are its ``K`` nearest candidates (§3.2.1) and the continuations of the previous frame's paths. Where the path switches, the old run is continued for ``fade`` frames
-and cross-faded into the new one (``crossfade_plan``), so a switch never pops.
+and cross-faded into the new one (``crossfade_plan``), so a switch never pops; the blend keeps the
+sources' detail energy (``two_band``), so a fade does not soften the mouth either.
 
 How it is warped (``align_to``): a smooth displacement field through the candidate's and the
 median's lower-face landmarks (Gaussian-weighted interpolation of the 35 jaw, nose and lip
 point displacements), then DIS optical flow between the landmark-warped candidate and the
-median's grey image corrects what the landmarks miss.
+median's grey image corrects what the landmarks miss; both are composed into one resampling.
+
+Sizes: the median may come from smaller candidates, upsampled (``synthesize.median_max_size``): only
+its low band is kept. The detail is taken at the texture's full size — the texture follows the face
+up to ``frontalize.max_texture_size`` — with the alignment's flow found at ≤ ``flow_max`` px.
 
 Texture arrays are (T, T, 3) uint8 RGB in the frontal texture plane; landmarks (68, 2) px.
 """
@@ -207,41 +212,71 @@ def _dis() -> cv2.DISOpticalFlow:
 
 
 def align_to(candidate: np.ndarray, cand_lm: np.ndarray, target: np.ndarray, target_lm: np.ndarray,
-             sigma: float, flow: bool = True) -> np.ndarray:
+             sigma: float, flow: bool = True, flow_max: int = 256) -> np.ndarray:
     """``candidate`` (T, T, 3) uint8 warped onto ``target``'s shape: landmarks, then DIS flow
-    from the target's grey image to the landmark-warped candidate's (both smoothed by σ/4)."""
+    from the target's grey image to the landmark-warped candidate's (both smoothed by σ/4).
+
+    The landmark warp and the flow are composed into one (bicubic) resampling of the candidate: each
+    resampling softens the finest detail, which is what this layer is for. Above ``flow_max`` px the
+    flow is found between area-averaged copies of that size and scaled up, and the landmark field's
+    grid nodes are spaced in proportion (the flow only corrects what the landmarks miss, a smooth field)."""
     size = candidate.shape[0]
-    mx, my = displacement_field(cand_lm, target_lm, size, sigma)
-    warped = cv2.remap(candidate, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    mx, my = displacement_field(cand_lm, target_lm, size, sigma, step=max(4, 4 * size // 256))
     if not flow:
-        return warped
-    k = max(0.5, sigma / 4)
-    a = cv2.GaussianBlur(cv2.cvtColor(target, cv2.COLOR_RGB2GRAY), (0, 0), k)
-    b = cv2.GaussianBlur(cv2.cvtColor(warped, cv2.COLOR_RGB2GRAY), (0, 0), k)
-    f = _dis().calc(a, b, None)                                   # a(p) ≈ b(p + f(p))
-    gx, gy = _node_coordinates(size, 1)                           # pixel coordinates, cached
-    return cv2.remap(warped, gx + f[..., 0], gy + f[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+        return cv2.remap(candidate, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    n = min(size, flow_max)
+    s = n / size
+    k = max(0.5, s * sigma / 4)
+    small = lambda g: cv2.GaussianBlur(g if n == size else cv2.resize(g, (n, n), interpolation=cv2.INTER_AREA),  # noqa: E731
+                                       (0, 0), k)
+    grey = cv2.remap(cv2.cvtColor(candidate, cv2.COLOR_RGB2GRAY), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    f = _dis().calc(small(cv2.cvtColor(target, cv2.COLOR_RGB2GRAY)), small(grey), None)    # a(p) ≈ b(p + f(p))
+    if n != size:
+        f = cv2.resize(f, (size, size), interpolation=cv2.INTER_LINEAR) / s
+    gx, gy = _node_coordinates(size, 1)
+    both = cv2.remap(np.dstack([mx, my]), gx + f[..., 0], gy + f[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)                 # the landmark map read at p + f(p)
+    return cv2.remap(candidate, both[..., 0], both[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
 
 
 def split_bands(rgb: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) float32 bands of a uint8 image: Gaussian blur with σ px and the rest."""
+    """(low, high) float32 bands of a uint8 image: Gaussian blur with σ px and the rest.
+
+    For σ ≥ 6 px the blur runs at half size (area-averaged, σ/2, bilinear back up: the kernel's
+    σ grows by < 1 %) — a quarter of the work where the band is wide."""
     x = rgb.astype(np.float32)
-    low = cv2.GaussianBlur(x, (0, 0), sigma)
+    if sigma < 6:
+        low = cv2.GaussianBlur(x, (0, 0), sigma)
+    else:
+        h, w = x.shape[:2]
+        half = cv2.resize(x, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+        low = cv2.resize(cv2.GaussianBlur(half, (0, 0), sigma / 2), (w, h), interpolation=cv2.INTER_LINEAR)
     return low, x - low
 
 
 def two_band(median: np.ndarray, median_lm: np.ndarray, sources: list[tuple[np.ndarray, np.ndarray, float]],
-             band_sigma: float, warp_sigma: float, flow: bool = True) -> np.ndarray:
+             band_sigma: float, warp_sigma: float, flow: bool = True, flow_max: int = 256) -> np.ndarray:
     """The median's low band plus the weighted detail bands of real frames aligned to it.
+
+    During a cross-fade the blend of two sources' details is rescaled to the weighted mean of their
+    energies (mean square): details of different frames are partly uncorrelated, and a plain weighted
+    sum of two loses up to half its energy half-way — the fade would show as a soft frame
+    (variance-preserving blending; the scale is bounded to [1, √2], its value for uncorrelated halves).
 
     median : (T, T, 3) uint8; median_lm : (68, 2) its (weight-averaged) landmarks, px.
     sources : [(texture (T, T, 3) uint8, landmarks (68, 2), weight)], weights summing to 1.
     band_sigma : px, the split between the bands; warp_sigma : px, the landmark field's reach.
+    flow_max : px, the largest size the alignment's optical flow runs at (``align_to``).
     Returns (T, T, 3) uint8.
     """
     low, _ = split_bands(median, band_sigma)
     detail = np.zeros_like(low)
+    energy = 0.0
     for tex, lm, w in sources:
-        _, high = split_bands(align_to(tex, lm, median, median_lm, warp_sigma, flow), band_sigma)
+        _, high = split_bands(align_to(tex, lm, median, median_lm, warp_sigma, flow, flow_max), band_sigma)
         detail += w * high
+        energy += w * float(np.mean(np.square(high)))
+    if len(sources) > 1:
+        blended = float(np.mean(np.square(detail)))
+        detail *= np.float32(np.clip(np.sqrt(energy / max(blended, 1e-12)), 1.0, np.sqrt(2.0)))
     return np.clip(low + detail + 0.5, 0, 255).astype(np.uint8)
