@@ -11,7 +11,9 @@ speech (../shared/data/hdtf), re-timing on. GRID: the GRID s1 clip ``GRID_CLIP``
 speaker: the corpus 3D face and the model's candidate bank; the 3 s target is extended by
 ping-pong). 720p: ``obama_08.mp4`` (another person: its own 3D face and mouths; 448 px crop,
 192 px texture). 1080p: the same clip upscaled to 1920×1080 (bicubic, once, into
-bench/results/synthesize; same crop and texture sizes — the face covers 2.25× the pixels).
+bench/results/synthesize; same crop and texture sizes — the face covers 2.25× the pixels). 1080p native:
+the same footage with crop and texture as ``auto`` sizes them for a 1080-line face (the texture follows the
+face, up to ``frontalize.max_texture_size``).
 Preprocessing of the target is not timed (it is cached in bench/results/cache); model loading
 and mouth prediction are (in "prediction").
 
@@ -44,6 +46,7 @@ from pipeline.params import load_params  # noqa: E402
 from pipeline.io.runner import setup_logging  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
+SIZES = ("grid", "720p", "1080p", "1080p native")
 GRID_CLIP = "bbaf2n.mp4"      # a GRID s1 clip: the base model's speaker (its candidate bank joins the pool)
 PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weighted_median", "teeth", "detail",
           "decode", "retime_flow", "target_geometry", "flow", "render_back", "blend", "check", "encode"]
@@ -150,7 +153,8 @@ def write_page(path: Path, page: Path = ROOT / "docs" / "synthesis_speed.md") ->
              "# Synthesis speed", "",
              "`python bench/synthesize.py --repeats 3`: synthesis and compositing as `lipsynth speak` runs them "
              "(with the shipped base model) of 32 s of speech into a GRID s1 clip, obama_08 (720p) "
-             "and the same upscaled to 1080p; ms/frame per phase (thread time: each phase runs on two "
+             "and the same upscaled to 1080p (with 720p's 448 px crop and 192 px texture; `1080p native`: as `auto` "
+             "sizes them for the 1080-line face); ms/frame per phase (thread time: each phase runs on two "
              "threads, so phases add up to more than the wall time), medians over repeats; "
              "frames/s is wall time on 2 cores; each column keeps the commit and date it was measured on. Goals (issue 33): GRID ≥ 60, 720p ≥ 30, 1080p ≥ 20 frames/s. Columns named with a "
              "method (`two_band`) ran with that `synthesize.detail` (`--detail`); the others with params.yaml's. "
@@ -175,7 +179,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--model", default=str(ROOT / "models" / "base"), help="model folder (default: the shipped base model)")
     ap.add_argument("--audio", default=None, help="speech file (default: 32 s of radio speech, see long_speech)")
-    ap.add_argument("--only", choices=["grid", "720p", "1080p"], default=None)
+    ap.add_argument("--only", choices=SIZES, default=None)
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "synthesize_speed.json",
                     help="results file; one entry per CPU feature level (AVX-512 / AVX2 / baseline)")
     ap.add_argument("--page-only", action="store_true", help="only rewrite docs/synthesis_speed.md from --out")
@@ -198,7 +202,7 @@ def main() -> None:
     a.audio = a.audio or str(long_speech(work / "speech_32s.wav"))
 
     cache = ROOT / "bench" / "results" / "cache"
-    for size in ("grid", "720p", "1080p"):
+    for size in SIZES:
         if a.only not in (None, size):
             continue
         base = copy.deepcopy(project)
@@ -207,9 +211,10 @@ def main() -> None:
             target = SHARED / "grid_s1" / "video" / GRID_CLIP
         else:
             target = SHARED / "obama" / "obama_08.mp4"
-            base.ingest.crop_size = 448
-            base.frontalize.texture_size = 192
-            if size == "1080p":
+            if size != "1080p native":                     # crop and texture as auto gives 720p
+                base.ingest.crop_size = 448
+                base.frontalize.texture_size = 192
+            if size.startswith("1080p"):
                 target = upscaled(target, work / "obama_08_1080p.mp4", (1920, 1080))
         prep = speak.prepare(a.audio, str(target), base, a.model, cache=cache)
         e = prep.entry

@@ -176,3 +176,13 @@ def test_auto_takes_two_bands_for_large_textures_only():
     assert detail_method("auto", 192) == "two_band"                # GRID s4 720×576
     assert detail_method("auto", TWO_BAND_FROM) == "two_band" and detail_method("auto", TWO_BAND_FROM - 16) == "median"
     assert detail_method("median", 512) == "median" and detail_method("two_band", 128) == "two_band"
+
+
+def test_the_two_band_median_runs_only_as_fine_as_its_low_band_shows():
+    from pipeline.params import Synthesize
+    from stages.synthesize.synthesize import median_size
+    p = Synthesize()                                               # detail_band_px 2, median_max_size 256
+    assert median_size(192, "median", p) == 192 and median_size(512, "median", p) == 256
+    assert median_size(192, "two_band", p) == 128 and median_size(512, "two_band", p) == 128
+    assert median_size(112, "two_band", p) == 112                  # never larger than the texture
+    assert median_size(512, "two_band", Synthesize(detail_band_px=1.0)) == 256   # a narrower band needs a finer median

@@ -206,8 +206,20 @@ def median_pool(pool_tex: np.ndarray, max_size: int) -> tuple[np.ndarray, float]
     m = min(T, int(max_size))
     if m == T:
         return pool_tex, 1.0
-    log.info("weighted median at %d px (texture %d px, synthesize.median_max_size=%d)", m, T, max_size)
+    log.info("weighted median at %d px (texture %d px)", m, T)
     return np.stack([resize_i420(t, m) for t in pool_tex]), m / T
+
+
+def median_size(texture_size: int, method: str, p: Synthesize) -> int:
+    """Texture px the weighted median runs at: at most ``synthesize.median_max_size``; for two_band also at
+    most what its low band can show. That band is the median blurred by σ = ``detail_band_px`` × T/128, which
+    leaves nothing of wavelengths below 2σ; a median sampled at 2 px per σ (T × 2/σ = 256 / detail_band_px px,
+    rounded up to 16, whatever T) resolves all of them. At 720p (T = 192) that is 128 px: less than half
+    the median's work for the same low band."""
+    m = min(int(texture_size), p.median_max_size)
+    if method == "two_band":
+        m = min(m, 16 * int(np.ceil(2 * REFERENCE_TEXTURE / p.detail_band_px / 16)))
+    return m
 
 
 def open_stores(params: Params, pca: bool = True) -> dict:
@@ -299,7 +311,7 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
     log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
              " (given)" if up is not None or lo is not None else " (automatic)")
     T = pool_tex.shape[2]
-    small, scale = median_pool(pool_tex, p.median_max_size)
+    small, scale = median_pool(pool_tex, median_size(T, method, p))
     m = small.shape[2]
     small_cloth = pool_cloth if scale == 1 else np.stack(          # clothing share ×255 at the median's size
         [cv2.resize(c.astype(np.uint8) * np.uint8(255), (m, m), interpolation=cv2.INTER_AREA) for c in pool_cloth])
