@@ -186,3 +186,20 @@ def test_the_two_band_median_runs_only_as_fine_as_its_low_band_shows():
     assert median_size(192, "two_band", p) == 128 and median_size(512, "two_band", p) == 128
     assert median_size(112, "two_band", p) == 112                  # never larger than the texture
     assert median_size(512, "two_band", Synthesize(detail_band_px=1.0)) == 256   # a narrower band needs a finer median
+
+
+def test_detail_from_a_differently_coloured_frame_brings_no_colour():
+    """A source whose colour differs from the median's (white teeth where the median shows red lips) adds
+    brightness detail only: every output pixel keeps the median's chroma."""
+    white = (np.indices((96, 96))[1] // 3 % 2).astype(bool)                             # fine 6 px stripes
+    teeth = np.where(white[..., None], np.uint8([235, 235, 235]), np.uint8([170, 40, 60]))   # teeth between lips
+    red = np.zeros((96, 96, 3), np.uint8)
+    red[...] = (170, 40, 60)                                                            # flat lipstick red
+    lm = np.tile([48.0, 48.0], (68, 1)) + np.random.default_rng(0).normal(0, 10, (68, 2))
+    out = tb.two_band(red, lm, [(teeth, lm, 1.0)], band_sigma=2.0, warp_sigma=8.0, flow=False).astype(float)
+    core = out[8:-8, 8:-8]
+    assert core[..., 1].std() > 20                                                      # the detail is there
+    d = core - core.mean(-1, keepdims=True)                                            # chroma: channel − mean
+    ref = np.array([170, 40, 60], float) - np.mean([170, 40, 60])
+    clipped = (core <= 0.5) | (core >= 254.5)
+    assert np.abs(d - ref)[~clipped.any(-1)].max() < 1.5, np.abs(d - ref).max()

@@ -258,6 +258,11 @@ def two_band(median: np.ndarray, median_lm: np.ndarray, sources: list[tuple[np.n
              band_sigma: float, warp_sigma: float, flow: bool = True, flow_max: int = 256) -> np.ndarray:
     """The median's low band plus the weighted detail bands of real frames aligned to it.
 
+    The detail is the sources' luma (grey) band, added to every channel alike: the colour stays the
+    median's. Where a source and the median disagree — teeth in one, a dark mouth or lipstick in the
+    other — a colour detail band would add the difference of two colours and tint the mouth (cyan teeth
+    under red lips); a luma band only brightens or darkens.
+
     During a cross-fade the blend of two sources' details is rescaled to the weighted mean of their
     energies (mean square): details of different frames are partly uncorrelated, and a plain weighted
     sum of two loses up to half its energy half-way — the fade would show as a soft frame
@@ -270,13 +275,14 @@ def two_band(median: np.ndarray, median_lm: np.ndarray, sources: list[tuple[np.n
     Returns (T, T, 3) uint8.
     """
     low, _ = split_bands(median, band_sigma)
-    detail = np.zeros_like(low)
+    detail = np.zeros(low.shape[:2], np.float32)
     energy = 0.0
     for tex, lm, w in sources:
-        _, high = split_bands(align_to(tex, lm, median, median_lm, warp_sigma, flow, flow_max), band_sigma)
+        aligned = align_to(tex, lm, median, median_lm, warp_sigma, flow, flow_max)
+        _, high = split_bands(cv2.cvtColor(aligned, cv2.COLOR_RGB2GRAY), band_sigma)
         detail += w * high
         energy += w * float(np.mean(np.square(high)))
     if len(sources) > 1:
         blended = float(np.mean(np.square(detail)))
         detail *= np.float32(np.clip(np.sqrt(energy / max(blended, 1e-12)), 1.0, np.sqrt(2.0)))
-    return np.clip(low + detail + 0.5, 0, 255).astype(np.uint8)
+    return np.clip(low + detail[..., None] + 0.5, 0, 255).astype(np.uint8)
