@@ -76,9 +76,11 @@ def pin_avx2(environ=os.environ, flags: set[str] | None = None) -> dict[str, str
     return added
 
 
-def x264_params(environ=os.environ) -> dict[str, str]:
-    """libx264 options holding x264 at the capped instruction sets (``LIPSYNTH_X264_ASM``; {} when unset:
-    x264 then uses what it detects). Its kernels are not all bit-exact across sets, so without this an
-    AVX-512 CPU writes other H.264 bytes than an AVX2 one."""
+def x264_params(options: str = "", environ=os.environ) -> dict[str, str]:
+    """libx264's ``x264-params``: ``options`` ('key=value:…') and the option holding x264 at the capped
+    instruction sets (``LIPSYNTH_X264_ASM``; none when unset: x264 then uses what it detects); {} when both
+    are empty. Its kernels are not all bit-exact across sets, so without the cap an AVX-512 CPU writes other
+    H.264 bytes than an AVX2 one."""
     asm = environ.get("LIPSYNTH_X264_ASM", "")
-    return {"x264-params": f"asm={asm}"} if asm and asm != "auto" else {}
+    parts = [o for o in (options, f"asm={asm}" if asm and asm != "auto" else "") if o]
+    return {"x264-params": ":".join(parts)} if parts else {}

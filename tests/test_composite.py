@@ -176,6 +176,27 @@ def test_render_map_upsampling_is_aligned_with_its_samples():
     assert np.abs(v - (-0.2 * fx + 0.5 * fy)).max() < 1e-3
 
 
+@pytest.mark.parametrize("footprint, T", [(118, 128), (266, 192), (400, 352), (1400, 512), (3000, 512)])
+def test_ray_map_step_is_a_power_of_two_within_the_texture_spacing(footprint, T):
+    """The ray map's step keeps solved samples ≤ RAY_MAP_SPACING texture px apart (at least 4 frame px) and is a
+    power of two: remap reads coordinates in 1/32 px, so at step 6 the upsampled map of an affine function is off
+    by up to 6/64 px, at a power of two it is exact."""
+    from stages.composite.render import upsample_grid
+    from stages.composite.target_geometry import RAY_MAP_SPACING, ray_map_step
+    step = ray_map_step(footprint, T)
+    assert step >= 4 and step & (step - 1) == 0
+    assert step == 4 or step * T / footprint <= RAY_MAP_SPACING
+    assert 2 * step * T / footprint > RAY_MAP_SPACING                 # the largest such step
+
+    def affine_error(step, h=97, w=97):
+        ys, xs = np.arange(0, h + step, step), np.arange(0, w + step, step)
+        gx, gy = np.meshgrid(xs, ys)
+        u, _ = upsample_grid(np.dstack([0.3 * gx + 2.0, 0.5 * gy]).astype(np.float32), step, (h, w))
+        return np.abs(u - (0.3 * np.mgrid[0:h, 0:w][1] + 2.0)).max()
+    assert affine_error(step) < 1e-3
+    assert affine_error(6) > 0.01                                   # why not any step
+
+
 def test_geometry_cache_reuses_frames_and_stays_within_its_budget(monkeypatch):
     """One computation per target frame while it stays cached; least recently used frames leave first once
     the byte budget is reached."""
@@ -198,12 +219,13 @@ def test_geometry_cache_reuses_frames_and_stays_within_its_budget(monkeypatch):
 
 
 def test_jaw_correction_of_a_large_texture_uses_the_flow_of_a_smaller_copy(landmarks_uv):
-    """At 512 px the flow is found at 256 px (``flow_max``) and scaled up: the jaw still lands on the target."""
+    """At 512 px the flow is found at 128 px (``flow_max``, its default) and scaled up: the jaw still lands on
+    the target."""
     face = cv2.resize(skimage.data.astronaut()[60:260, 140:340], (512, 512), interpolation=cv2.INTER_CUBIC)
     shift = np.float32([[1, 0, 0], [0, 1, 12]])                # synthesized chin 12 px (3 at 128) too low
     synth = cv2.warpAffine(face, shift, (512, 512), borderMode=cv2.BORDER_REFLECT)
     band = jaw_band(4 * landmarks_uv, 512, 24.0)
-    fixed = jaw_correction(synth, face, band, flow_max=256)
+    fixed = jaw_correction(synth, face, band)
     near, far = band > 0.6, band < 1e-3
     err = lambda img, m: np.abs(img.astype(float) - face.astype(float))[m].mean()       # noqa: E731
     assert err(fixed, near) < 0.5 * err(synth, near), (err(fixed, near), err(synth, near))

@@ -2,7 +2,7 @@
 import numpy as np
 
 from pipeline.io import media
-from pipeline.io.threads import opencv_threads
+from pipeline.io.threads import library_threads, opencv_threads
 
 
 def test_written_colours_come_back(tmp_path):
@@ -29,3 +29,14 @@ def test_opencv_threads_is_restored():
     with opencv_threads(1):
         assert cv2.getNumThreads() == 1
     assert cv2.getNumThreads() == before
+
+
+def test_library_threads_holds_opencv_and_blas_and_restores_them():
+    import cv2
+    from threadpoolctl import threadpool_info
+    blas = lambda: [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]     # noqa: E731
+    before_cv, before_blas = cv2.getNumThreads(), blas()
+    assert before_blas, "NumPy's OpenBLAS is loaded"
+    with library_threads(1):
+        assert cv2.getNumThreads() == 1 and set(blas()) == {1}
+    assert cv2.getNumThreads() == before_cv and blas() == before_blas

@@ -1,5 +1,6 @@
 """pipeline.simd_level: one set of kernels on every AVX2 CPU (AVX-512 turned off where present), never over a user's value, and before NumPy loads."""
 import ast
+import os
 import subprocess
 import sys
 
@@ -76,9 +77,9 @@ def test_x264_is_held_at_the_capped_instruction_sets(tmp_path):
     import av
     import av.logging
     import numpy as np
-    assert x264_params({"LIPSYNTH_X264_ASM": "SSE2,AVX2"}) == {"x264-params": "asm=SSE2,AVX2"}
-    assert x264_params({}) == {} and x264_params({"LIPSYNTH_X264_ASM": "auto"}) == {}
-    options = x264_params({"LIPSYNTH_X264_ASM": AVX2_CAP["LIPSYNTH_X264_ASM"]})
+    assert x264_params(environ={"LIPSYNTH_X264_ASM": "SSE2,AVX2"}) == {"x264-params": "asm=SSE2,AVX2"}
+    assert x264_params(environ={}) == {} and x264_params(environ={"LIPSYNTH_X264_ASM": "auto"}) == {}
+    options = x264_params(environ={"LIPSYNTH_X264_ASM": AVX2_CAP["LIPSYNTH_X264_ASM"]})
     assert cpu_flags() >= {"avx2", "fma", "bmi2"}, "the cap's list names AVX2: this test needs an AVX2 CPU"
     av.logging.set_level(av.logging.VERBOSE)
     try:
@@ -114,3 +115,13 @@ def test_every_bench_caps_the_simd_level_before_a_numeric_library_loads():
         if first_numeric is not None and (first_ours is None or first_ours > first_numeric):
             late.append(path.name)
     assert late == []
+
+
+def test_importing_pipeline_turns_numpys_huge_pages_off():
+    """Frame loops allocate thousands of ≥ 4 MB arrays; with NumPy's madvise(MADV_HUGEPAGE) each fresh one was
+    zeroed 2 MB at a time by the kernel. ``pipeline`` sets NUMPY_MADVISE_HUGEPAGE=0 before NumPy loads."""
+    code = ("import pipeline, numpy\nfrom numpy._core.multiarray import _set_madvise_hugepage\n"
+            "print(_set_madvise_hugepage(False))")
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"                    # the setting it had: off

@@ -26,12 +26,13 @@ class VideoWriter:
     """
 
     def __init__(self, path, fps: float, crf: int = 18, preset: str = "veryfast",
-                 audio: np.ndarray | None = None, sample_rate: int = 48000, threads: int = 1):
+                 audio: np.ndarray | None = None, sample_rate: int = 48000, threads: int = 1,
+                 x264_options: str = ""):
         self.path = str(path)
         self.c = av.open(self.path, "w")
         self.v = self.c.add_stream("libx264", rate=_rate(fps),
                                    options={"crf": str(crf), "preset": preset, "threads": str(int(threads)),
-                                            **x264_params()})
+                                            **x264_params(x264_options)})
         self.v.pix_fmt = "yuv420p"
         self.a = None
         if audio is not None:

@@ -94,6 +94,8 @@ class Synthesize(Section):
 
 @dataclass
 class Composite(Section):
+    CHOICES = {"preset": ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower",
+                          "veryslow", "placebo")}
     out_dir: str = field(default="outputs/synthetic_speaker",
         metadata={"help": "folder result.mp4 (and result.diagnostic.mp4) are written to"})
     diagnostic: bool = field(default=True,
@@ -119,7 +121,9 @@ class Composite(Section):
     crf: int = field(default=18,
         metadata={"help": "H.264 quality (x264 CRF: lower is better and larger)", "min": 0, "max": 51})
     preset: str = field(default="veryfast",
-        metadata={"help": "x264 encoder preset (speed against file size)"})
+        metadata={"help": "x264 encoder preset (speed against file size and detail; docs/encode.md measures settings)"})
+    x264_options: str = field(default="",
+        metadata={"help": "x264-params added to the preset ('key=value:…', e.g. 'subme=1'; '' for the preset alone). docs/encode.md measures time, size and PSNR of a few; faster settings cost the mouth some sharpness", "advanced": True})
     audio_rate: int = field(default=48000,
         metadata={"help": "AAC sample rate of the muxed audio (Hz)", "min": 8000, "max": 192000})
     self_check: bool = field(default=True,
@@ -132,6 +136,11 @@ class Composite(Section):
         metadata={"help": "self-check: fall back when the mouth box is this many times sharper (Laplacian energy) than the target's"})
     check_fade_frames: int = field(default=3,
         metadata={"help": "cross-fade length (frames) into and out of a fallback", "min": 0})
+
+    def validate(self) -> None:
+        super().validate()
+        if self.x264_options and not all("=" in o for o in self.x264_options.split(":")):
+            raise bad("x264_options", self.x264_options, "must be x264-params 'key=value:key=value' (or '')")
 
 
 @dataclass

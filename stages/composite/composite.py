@@ -31,7 +31,7 @@ from pipeline.face.geometry import intrinsics
 from pipeline.video.repeats import halfway_frame, repeat_partners
 from pipeline.params import Composite, Params
 from pipeline.io.runner import stage_main, write_timing
-from pipeline.io.threads import opencv_threads
+from pipeline.io.threads import library_threads
 from pipeline.io.store import atomic_output, i420_to_rgb, open_group
 from stages.composite.layers import colour_match, jaw_correction, pyramid_blend, synth_alpha
 from stages.composite import self_check
@@ -245,10 +245,11 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
     with contextlib.ExitStack() as stack:           # closed in reverse: writers finish before the renames
         tmp = stack.enter_context(atomic_output(out, suffix=".mp4"))
         diag_tmp = stack.enter_context(atomic_output(diag, suffix=".mp4")) if diag else None
-        writer = stack.enter_context(media.VideoWriter(tmp, fps, p.crf, p.preset, audio, sr))
-        diag_writer = stack.enter_context(media.VideoWriter(diag_tmp, fps, p.crf, p.preset, audio, sr)) if diag else None
+        writer = stack.enter_context(media.VideoWriter(tmp, fps, p.crf, p.preset, audio, sr, x264_options=p.x264_options))
+        diag_writer = stack.enter_context(media.VideoWriter(diag_tmp, fps, p.crf, p.preset, audio, sr,
+                                                                      x264_options=p.x264_options)) if diag else None
         pool = stack.enter_context(ThreadPoolExecutor(p.threads))
-        stack.enter_context(opencv_threads(1))
+        stack.enter_context(library_threads(1))
         bar = stack.enter_context(tqdm(total=len(mapping), desc="composite", unit="frame", dynamic_ncols=True))
         output = OrderedOutput(writer, diag_writer, lips, fade, timing, bar)
         pending: deque = deque()                    # submitted to the pool, in output order

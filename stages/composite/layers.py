@@ -70,14 +70,15 @@ def jaw_band(landmarks_uv: np.ndarray, size: int, width: float) -> np.ndarray:
 
 
 def jaw_correction(synth_rgb: np.ndarray, target_rgb: np.ndarray, band: np.ndarray,
-                   flow_max: int = 256) -> np.ndarray:
+                   flow_max: int = 128) -> np.ndarray:
     """Warp the synthesized texture so its jawline meets the target's (§3.4.1, Fig. 7).
 
     Dense optical flow (DIS) from the target texture to the synthesized one gives, for every
     target pixel p, where its content sits in the synthesized texture (p + f(p)); the flow is
     masked by the jaw band and the synthesized texture is resampled at p + band(p)·f(p).
     Textures larger than ``flow_max`` px get the flow of their area-averaged copies at that size,
-    upsampled (the jaw's misfit is smooth; the flow's cost grows with T²).
+    upsampled: the jaw's misfit is a smooth shift of a few texture px — the scale the band and the
+    flow's patches are set at (T = 128, where the pipeline was tuned) — and the flow's cost grows with T².
     """
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     T = synth_rgb.shape[0]
@@ -89,10 +90,16 @@ def jaw_correction(synth_rgb: np.ndarray, target_rgb: np.ndarray, band: np.ndarr
         flow *= T / flow_max
     else:
         flow = dis.calc(g_t, g_s, None)
-    gy, gx = np.mgrid[0:T, 0:T].astype(np.float32)
-    mx = gx + band * flow[..., 0]
-    my = gy + band * flow[..., 1]
-    return cv2.remap(synth_rgb, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    ys, xs = np.nonzero(band > 1e-4)          # outside the band every pixel stays where it is: copied
+    if not len(ys):
+        return synth_rgb
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    b = band[y0:y1, x0:x1]
+    mx = np.arange(x0, x1, dtype=np.float32)[None, :] + b * flow[y0:y1, x0:x1, 0]
+    my = np.arange(y0, y1, dtype=np.float32)[:, None] + b * flow[y0:y1, x0:x1, 1]
+    out = synth_rgb.copy()
+    out[y0:y1, x0:x1] = cv2.remap(synth_rgb, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    return out
 
 
 def pyramid_blend(front: np.ndarray, back: np.ndarray, alpha: np.ndarray, levels: int = 5) -> np.ndarray:

@@ -21,6 +21,10 @@ from stages.composite.layers import jaw_band, lab_stats, layer_masks, skin_regio
 from stages.composite.render import inverse_map, texture_footprint
 
 
+RAY_MAP_SPACING = 8.0   #: at most this many texture px between solved ray-map samples (bilinear between them:
+                        #: p99 error ≤ 0.09 texture px on GRID, 720p and 1080p faces against a map solved per pixel)
+
+
 @dataclasses.dataclass
 class TargetGeometry:
     """One target frame's part of compositing (T = texture size px; box = frame px x0, y0, x1, y1)."""
@@ -59,11 +63,20 @@ def target_geometry(tgt, j: int, T: int, p: Composite, frame_shape: tuple) -> Ta
     x0, y0, x1, y1 = box
     map_u = map_v = None
     if x1 > x0 and y1 > y0:
-        # the ray map is solved every ≈ 2.5 texture px (at least every 4 frame px) and interpolated
-        # between: the same accuracy in the texture whatever the face's size in the frame
-        step = max(4, int(round(2.5 * max(x1 - x0 - 2 * margin, 1) / T)))
+        step = ray_map_step(x1 - x0 - 2 * margin, T)
         map_u, map_v = inverse_map(box, tgt.surface, tgt.window, rvec, tvec, tgt.K, step=step)
     return TargetGeometry(texture, mouth, neck, skin, lab, band, shirt, box, map_u, map_v)
+
+
+def ray_map_step(footprint_px: int, T: int, spacing_texture_px: float = RAY_MAP_SPACING) -> int:
+    """Frame px between the ray map's solved samples: the largest power of two (at least 4) that spaces them at
+    most ``spacing_texture_px`` texture px apart — the same accuracy in the texture whatever the face's size in
+    the frame (``footprint_px`` wide for a T px texture). A power of two because ``cv2.remap`` reads its
+    coordinates in 1/32 px: k/step is exact then, while e.g. step 6 shifts the map by up to 6/64 frame px."""
+    steps = 4
+    while 2 * steps * T <= spacing_texture_px * max(footprint_px, 1):
+        steps *= 2
+    return steps
 
 
 class GeometryCache:

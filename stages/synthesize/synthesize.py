@@ -20,7 +20,8 @@ of the candidates' weight, ×255, for which a pixel was clothing inpainted by fr
 composite keeps such pixels out of the neck layer), target_frame (N,) int32 (frame
 of the target video shown at output frame i), repeated (N,) bool, lip_points (N, 18, 2)
 predicted, candidate_landmarks (N, 68, 2) weight-averaged landmarks of the candidates, sigma
-(N,); attrs: target (its index entry), fps, n_frames, pool_size, teeth_proxies. Nothing in it
+(N,); attrs: target (its index entry), fps, n_frames, pool_size, teeth_proxies (the upper and lower
+proxy's pool frames; [] for two_band, which takes real frames' detail instead). Nothing in it
 names a machine-specific path or a time measurement: the same inputs give the same bytes
 (per-phase timing goes to ``logs/synthesize.timing.json``, outside DVC).
 
@@ -44,7 +45,7 @@ from pipeline.face.geometry import euler_degrees
 from pipeline.models.mouth_prediction import load_audio, predict_mouth
 from pipeline.params import Params, Synthesize
 from pipeline.io.runner import stage_main, write_timing
-from pipeline.io.threads import opencv_threads
+from pipeline.io.threads import library_threads
 from pipeline.io.store import atomic_output, create_group, open_group, resize_i420, take
 from stages.synthesize import retime as rt
 from stages.synthesize.speech_flags import speech_flags
@@ -294,22 +295,26 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
                                  f"usable frame of the candidate pool (0 … {entry['n_frames'] - 1}, tracked face)")
         return None if j is None else int(hit[0])
 
-    yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
-    upper, lower = th.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
-                                         s_max=p.teeth_s_max, v_min=p.teeth_v_min, upper=to_pool(up), lower=to_pool(lo))
     px = pool_tex.shape[2] / REFERENCE_TEXTURE        # the px params are given at T = 128: same mm at any texture size
-    proxies = th.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower,
-                                     sigmas=tuple(px * s for s in p.teeth_sigmas), strength=p.teeth_strength,
-                                     feather_px=px * p.teeth_feather_px)
     detail = dict(s_max=p.teeth_s_max, v_min=p.teeth_v_min, feather_px=px * p.teeth_feather_px,
                   unsharp_sigma=px * p.unsharp_sigma, unsharp_amount=p.unsharp_amount)
-    plan = searches = None
+    plan = searches = proxies = None
+    teeth = []
     method = detail_method(p.detail, pool_tex.shape[2])
     if method == "two_band":              # real detail replaces the teeth proxy and the unsharp mask
-        proxies, detail["unsharp_amount"] = None, 0.0
+        detail["unsharp_amount"] = 0.0
         plan, searches = detail_plan(lips, shapes, pool, p)
-    log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
-             " (given)" if up is not None or lo is not None else " (automatic)")
+    else:
+        yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
+        upper, lower = th.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
+                                             s_max=p.teeth_s_max, v_min=p.teeth_v_min, upper=to_pool(up),
+                                             lower=to_pool(lo))
+        proxies = th.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower,
+                                         sigmas=tuple(px * s for s in p.teeth_sigmas), strength=p.teeth_strength,
+                                         feather_px=px * p.teeth_feather_px)
+        teeth = [int(pool[upper]), int(pool[lower])]
+        log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
+                 " (given)" if up is not None or lo is not None else " (automatic)")
     T = pool_tex.shape[2]
     small, scale = median_pool(pool_tex, median_size(T, method, p))
     m = small.shape[2]
@@ -351,7 +356,7 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
                              shards=(256, T, T, 3))
         cand = np.zeros((n_out, 68, 2), np.float32)
         sig = np.zeros(n_out, np.float32)
-        with ThreadPoolExecutor(p.threads) as ex, opencv_threads(1):
+        with ThreadPoolExecutor(p.threads) as ex, library_threads(1):
             for a in tqdm(range(0, n_out, 256), desc="synthesize", unit="block", dynamic_ncols=True):
                 res = list(ex.map(one, range(a, min(a + 256, n_out))))
                 tex[a:a + len(res)] = np.stack([r[0] for r in res])
@@ -369,7 +374,7 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
         g.create_array("sigma", data=sig)
         ms = {k: 1000 * v / n_out for k, v in timing.items()}
         g.attrs.update(dict(target=entry, fps=entry["fps"], n_frames=n_out, pool_size=int(len(pool)),
-                            teeth_proxies=[int(pool[upper]), int(pool[lower])]))
+                            teeth_proxies=teeth))
     log.info("synthesized %d textures in %.1f s (thread time per frame: %s ms)", n_out, time.perf_counter() - t_start,
              ", ".join(f"{k} {v:.1f}" for k, v in ms.items()))
     return ms
