@@ -11,6 +11,8 @@ import cv2
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from pipeline.video.flow import flow_at_most
+
 CHIN = list(range(2, 15))           # jaw-contour landmarks used for the chin spline
 
 
@@ -81,15 +83,8 @@ def jaw_correction(synth_rgb: np.ndarray, target_rgb: np.ndarray, band: np.ndarr
     flow's patches are set at (T = 128, where the pipeline was tuned) — and the flow's cost grows with T².
     """
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    T = synth_rgb.shape[0]
-    g_t = cv2.cvtColor(target_rgb, cv2.COLOR_RGB2GRAY)
-    g_s = cv2.cvtColor(synth_rgb, cv2.COLOR_RGB2GRAY)
-    if T > flow_max:
-        small = lambda g: cv2.resize(g, (flow_max, flow_max), interpolation=cv2.INTER_AREA)    # noqa: E731
-        flow = cv2.resize(dis.calc(small(g_t), small(g_s), None), (T, T), interpolation=cv2.INTER_LINEAR)
-        flow *= T / flow_max
-    else:
-        flow = dis.calc(g_t, g_s, None)
+    flow = flow_at_most(dis, cv2.cvtColor(target_rgb, cv2.COLOR_RGB2GRAY), cv2.cvtColor(synth_rgb, cv2.COLOR_RGB2GRAY),
+                        flow_max)
     ys, xs = np.nonzero(band > 1e-4)          # outside the band every pixel stays where it is: copied
     if not len(ys):
         return synth_rgb

@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from pipeline.errors import ParameterError
+from pipeline.video.flow import flow_at_most
 
 LOWER_FACE = np.r_[2:15, 31:36, 48:68]        # dlib points that move with the mouth and jaw (35)
 
@@ -225,15 +226,9 @@ def align_to(candidate: np.ndarray, cand_lm: np.ndarray, target: np.ndarray, tar
     mx, my = displacement_field(cand_lm, target_lm, size, sigma, step=max(4, 4 * size // 256))
     if not flow:
         return cv2.remap(candidate, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-    n = min(size, flow_max)
-    s = n / size
-    k = max(0.5, s * sigma / 4)
-    small = lambda g: cv2.GaussianBlur(g if n == size else cv2.resize(g, (n, n), interpolation=cv2.INTER_AREA),  # noqa: E731
-                                       (0, 0), k)
     grey = cv2.remap(_grey(candidate), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-    f = _dis().calc(small(_grey(target)), small(grey), None)    # a(p) ≈ b(p + f(p))
-    if n != size:
-        f = cv2.resize(f, (size, size), interpolation=cv2.INTER_LINEAR) / s
+    f = flow_at_most(_dis(), _grey(target), grey, flow_max,           # a(p) ≈ b(p + f(p))
+                     blur_sigma=max(0.5, min(size, flow_max) / size * sigma / 4))
     gx, gy = _node_coordinates(size, 1)
     both = cv2.remap(np.dstack([mx, my]), gx + f[..., 0], gy + f[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE)                 # the landmark map read at p + f(p)
