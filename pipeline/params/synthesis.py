@@ -123,7 +123,7 @@ class Composite(Section):
     preset: str = field(default="veryfast",
         metadata={"help": "x264 encoder preset (speed against file size and detail; docs/encode.md measures settings)"})
     x264_options: str = field(default="",
-        metadata={"help": "x264-params added to the preset ('key=value:…', e.g. 'subme=1'; '' for the preset alone). docs/encode.md measures time, size and PSNR of a few; faster settings cost the mouth some sharpness", "advanced": True})
+        metadata={"help": "x264-params added to the preset ('key=value:…', e.g. 'subme=1'; '' for none): faster settings cost the mouth some detail (docs/encode.md)", "advanced": True})
     audio_rate: int = field(default=48000,
         metadata={"help": "AAC sample rate of the muxed audio (Hz)", "min": 8000, "max": 192000})
     self_check: bool = field(default=True,
