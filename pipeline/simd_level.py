@@ -23,10 +23,14 @@ AVX2_CAP = {
     "ATEN_CPU_CAPABILITY": "avx2",             # PyTorch's vectorised ATen kernels
     # Intel MKL (PyTorch's and CTranslate2's matrix products): its one branch that Intel documents as giving
     # the same results on Intel and Intel-compatible (AMD) CPUs — SSE2 without rcpps/rsqrtps. The AVX2
-    # branch exists on Intel CPUs only (elsewhere MKL quietly falls back to its AUTO dispatch).
+    # branch exists on Intel CPUs only (elsewhere MKL quietly falls back to its AUTO dispatch). MKL's vector
+    # math (torch.sqrt) still runs rsqrtps there: training steps with pipeline/models/adam.py, not torch.sqrt.
     "MKL_CBWR": "COMPATIBLE",
     "CT2_USE_MKL": "1",                        # CTranslate2 (the Whisper encoder) takes MKL on AMD too (else oneDNN)
-    "ONEDNN_MAX_CPU_ISA": "AVX2",              # oneDNN (PyTorch's convolutions)
+    # oneDNN (PyTorch's convolutions and its LSTM): AVX, one level lower. Its AVX2 LSTM kernels gave other bits
+    # on an AVX-512 Xeon held at AVX2 than on emulated AVX2 CPUs of either vendor; at AVX (and SSE4.1) all
+    # agree, and the convolutions agree at both (bench/cross_vendor.py). Cost: an LSTM step ≈ 1.2× (AVX vs AVX2).
+    "ONEDNN_MAX_CPU_ISA": "AVX",
     "CT2_FORCE_CPU_ISA": "AVX2",               # CTranslate2's own kernels
     "OPENBLAS_CORETYPE": "Haswell",            # OpenBLAS inside NumPy and SciPy wheels (Zen would get its own blocking)
     # x264 (inside PyAV's FFmpeg) reads no variable: our writers pass this to its ``asm`` option (x264_params).

@@ -1,10 +1,17 @@
 """The first stages give the same bytes whatever SIMD code NumPy and OpenCV pick at run time. (That a run in
 another folder, on a loaded machine, gives the committed dvc.lock's hashes is checked on the reproduced demo:
 ``tests/test_dvc_pipeline.py::test_a_fresh_run_reproduces_the_committed_dvc_lock``.)"""
+import json
+import os
+import shutil
+import subprocess
+import sys
+
 import pytest
 import yaml
 
 from pipeline.simd_level import AVX2_CAP, AVX512_SKX, cpu_flags
+from tests.conftest import ROOT
 from tests.helpers import copy_project, dvc
 
 def lowest_dispatch() -> dict:
@@ -44,3 +51,24 @@ def test_first_stages_are_the_same_bytes_with_the_highest_and_the_lowest_simd_di
         locks.append(yaml.safe_load((proj / "dvc.lock").read_text())["stages"])
     for stage in ("synthetic_speaker", "ingest", "landmarks"):
         assert locks[0][stage]["outs"] == locks[1][stage]["outs"], f"{stage}: outputs depend on the SIMD dispatch"
+
+
+@pytest.mark.slow
+def test_training_steps_are_the_same_bits_on_an_emulated_amd_cpu():
+    """The train stage's network, three Adam steps (bench/cross_vendor.py's ``lstm`` probe: PyTorch's LSTM
+    through oneDNN, MKL's matrix products, the fused Adam), here and under ``qemu-x86_64 -cpu`` as an AMD
+    EPYC (AVX2, no AVX-512): the libraries pick their kernels by the CPUID they see. Before oneDNN's cap
+    went to AVX and Adam was fused, it gave other weights than this CPU (an emulated Intel Haswell too:
+    ``bench/cross_vendor.py`` runs both)."""
+    qemu = shutil.which("qemu-x86_64")
+    if qemu is None:
+        pytest.skip("qemu-x86_64 not installed (Debian package qemu-user; .ci/run installs it)")
+    probe = [sys.executable, str(ROOT / "bench" / "cross_vendor.py"), "--probe", "lstm"]
+    # qemu-user shows the host's /proc/cpuinfo: the cap must not name the host's AVX-512 groups there
+    emulated_env = dict(os.environ, NPY_DISABLE_CPU_FEATURES="", OPENCV_CPU_DISABLE="")
+    runs = {"native": subprocess.run(probe, capture_output=True, text=True, check=True)}
+    for cpu in ("EPYC-Rome-v1",):
+        runs[cpu] = subprocess.run([qemu, "-cpu", cpu] + probe, env=emulated_env, capture_output=True, text=True,
+                                   check=True)
+    weights = {cpu: json.loads(r.stdout.strip().splitlines()[-1])["lstm"] for cpu, r in runs.items()}
+    assert len(set(weights.values())) == 1, weights

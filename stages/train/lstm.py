@@ -17,6 +17,7 @@ import time
 import numpy as np
 import torch
 
+from pipeline.models.adam import adam
 from pipeline.models.delayed_lstm import DelayedLSTM, predict_sequence
 from pipeline.models.training_budget import Budget, EarlyStopping, StepPlan
 from pipeline.params import Train
@@ -96,7 +97,7 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
         model.load_state_dict(init["state"])
         model = model.to(device)
         trained = list(model.out.parameters()) if p.fine_tune == "output" else list(model.parameters())
-    opt = torch.optim.Adam(trained, lr=p.lr)
+    opt = adam(trained, p.lr)
     anchor = float(init.get("anchor", 0.0)) if init else 0.0
     start = [w.detach().clone() for w in trained] if anchor else []
     # x may hold K variants (K, m, n_in) of the same audio (VTLP copies): each epoch draws one per video

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from pipeline.models.adam import adam
 from pipeline.models.karras_network import KarrasNetwork
 from pipeline.audio.speech_autocorrelation import padded_track, windows
 from pipeline.models.training_budget import Budget, EarlyStopping, StepPlan
@@ -84,7 +85,7 @@ def fit(videos: list[dict], config: FitConfig, progress: bool = True, on_validat
     # one emotion vector per training frame: index = (video, frame) flattened
     offsets = np.cumsum([0] + [len(v["targets"]) for v in train])
     emotions = torch.nn.Parameter(config.emotion_sigma * torch.randn(int(offsets[-1]), config.emotion_dim))
-    opt = torch.optim.Adam(list(net.parameters()) + [emotions], lr=config.lr)
+    opt = adam(list(net.parameters()) + [emotions], config.lr)
     loss_fn = objective.KarrasLoss(use_motion=config.motion, use_emotion=config.emotions)
     per_epoch = max(1, len(pairs) // config.batch)          # an epoch: as many samples as training frames
     total_epochs = budget.steps / per_epoch
