@@ -16,7 +16,9 @@ probe runs one kernel family the stages' outputs go through, on fixed inputs, an
 ``native`` runs on this machine's CPU; any other name runs the probes in ``qemu-x86_64 -cpu NAME``
 (user-mode emulation: the libraries see that CPU's CPUID — its vendor, instruction sets and caches —
 and pick their kernels by it, as on the real machine). An emulated Intel CPU is the control: it shows
-that emulation itself does not change a bit. Every probe is single-process (no dask workers), so
+that emulation itself does not change a bit. One thing emulation does not copy: ``rsqrtps`` and ``rcpps``
+(approximations whose last bits differ between CPU makers) come out exact under qemu, so a kernel that
+uses them shows as a difference here too — rightly, since its bits differ between makers. Every probe is single-process (no dask workers), so
 the whole of it runs on the emulated CPU. Writes results/cross_vendor.json and docs/cross_vendor.md.
 """
 from __future__ import annotations

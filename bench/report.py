@@ -1,6 +1,6 @@
 """Regenerate a corpus report (``reports/<name>/``) from a committed configuration.
 
-    python bench/report.py configs/grid_s1.yaml [--clips 20] [--skip-existing] [--no-sweep] [--set karras.steps=1770]
+    python bench/report.py configs/grid_s1.yaml [--clips 20] [--skip-existing] [--no-sweep] [--no-voices] [--set karras.steps=1770]
 
 ``configs/<name>.yaml`` holds overrides of params.yaml (the corpus, its output folders). This
 merges them into ``runs/<name>/params.yaml`` (validated like any params file), runs the stages
@@ -78,6 +78,8 @@ def main() -> None:
     ap.add_argument("--clips", type=int, default=20, help="validation clips for synthesis quality")
     ap.add_argument("--skip-existing", action="store_true", help="do not rerun a stage whose output exists")
     ap.add_argument("--no-sweep", action="store_true", help="leave the delay sweep out")
+    ap.add_argument("--no-voices", action="store_true",
+                    help="leave other people's voices out (the shipped-front-end LSTM, the base model, bench/cross_speaker.py)")
     ap.add_argument("--base-people", nargs="*", default=list(BASE_PEOPLE), metavar="NAME=VIDEOS",
                     help="other people in the base model (default: Obama and HDTF; none: no base model)")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -95,10 +97,12 @@ def main() -> None:
         if stage == "delay_sweep" and a.no_sweep:
             continue
         run_stage(stage, module, params, params_file, a.skip_existing)
-    models = voices_models(params, run_dir, a.base_people, a.skip_existing)
-    if a.skip_existing and (report / "cross_speaker.json").exists():
+    if a.no_voices:
+        (report / "cross_speaker.json").unlink(missing_ok=True)       # not from this run: not shown
+    elif a.skip_existing and (report / "cross_speaker.json").exists():
         print("== cross_speaker: exists, skipped", flush=True)
     else:
+        models = voices_models(params, run_dir, a.base_people, a.skip_existing)
         cmd = [sys.executable, str(ROOT / "bench" / "cross_speaker.py"), "--out", str(report / "cross_speaker.json")]
         for model, metrics in models:
             cmd += ["--model", model, "--metrics", metrics]
@@ -110,7 +114,9 @@ def main() -> None:
     shutil.copy(params["train"]["plots"], report / "train_loss.csv")
     shutil.copy(params["brand"]["metrics"], report / "train_brand_metrics.json")
     shutil.copy(params["brand"]["plots"], report / "train_brand.csv")
-    if not a.no_sweep:
+    if a.no_sweep:
+        (report / "delay_sweep.csv").unlink(missing_ok=True)          # not from this run: not shown
+    else:
         shutil.copy(params["delay_sweep"]["plots"], report / "delay_sweep.csv")
     for flags, name, out in ((["--exclude-target"], "quality", "synthesis_quality.json"),
                              ([], "quality_in_pool", "synthesis_quality_target_in_pool.json"),

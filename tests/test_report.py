@@ -234,3 +234,15 @@ def test_the_project_report_renders_in_headless_chromium(tmp_path):
     print(f"screenshot: {tmp_path / 'screenshot.png'}")
     assert n_videos >= 1
     assert_page_renders(state, n_videos=n_videos, n_svgs=page.read_text().count("<svg"))
+
+
+def test_the_committed_grid_page_plays_its_videos_in_headless_chromium(tmp_path):
+    """reports/grid_s1/ is committed (docs/report.md links it): every player on it finds its clip and plays it."""
+    page = ROOT / "reports" / "grid_s1" / "index.html"
+    text = page.read_text()
+    sources = re.findall(r'<video[^>]*src="([^"]+)"', text) + re.findall(r'<source[^>]*src="([^"]+)"', text)
+    assert len(sources) == text.count("<video") >= 1, "the GRID page shows no video"
+    missing = [s for s in sources if not (page.parent / s).is_file()]
+    assert not missing, f"{page} names videos that are not committed: {missing}"
+    state = check_in_browser(page, tmp_path / "screenshot.png")
+    assert_page_renders(state, n_videos=text.count("<video"), n_svgs=text.count("<svg"))
