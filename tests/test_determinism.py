@@ -1,17 +1,14 @@
 """The first stages give the same bytes whatever SIMD code NumPy and OpenCV pick at run time. (That a run in
 another folder, on a loaded machine, gives the committed dvc.lock's hashes is checked on the reproduced demo:
 ``tests/test_dvc_pipeline.py::test_a_fresh_run_reproduces_the_committed_dvc_lock``.)"""
-import json
-import os
 import shutil
-import subprocess
-import sys
+import time
 
 import pytest
 import yaml
 
 from pipeline.simd_level import AVX2_CAP, AVX512_SKX, cpu_flags
-from tests.conftest import ROOT
+from bench.cross_vendor import result_of, start_on
 from tests.helpers import copy_project, dvc
 
 def lowest_dispatch() -> dict:
@@ -63,12 +60,7 @@ def test_training_steps_are_the_same_bits_on_an_emulated_amd_cpu():
     qemu = shutil.which("qemu-x86_64")
     if qemu is None:
         pytest.skip("qemu-x86_64 not installed (Debian package qemu-user; .ci/run installs it)")
-    probe = [sys.executable, str(ROOT / "bench" / "cross_vendor.py"), "--probe", "lstm"]
-    # qemu-user shows the host's /proc/cpuinfo: the cap must not name the host's AVX-512 groups there
-    emulated_env = dict(os.environ, NPY_DISABLE_CPU_FEATURES="", OPENCV_CPU_DISABLE="")
-    runs = {"native": subprocess.run(probe, capture_output=True, text=True, check=True)}
-    for cpu in ("EPYC-Rome-v1",):
-        runs[cpu] = subprocess.run([qemu, "-cpu", cpu] + probe, env=emulated_env, capture_output=True, text=True,
-                                   check=True)
-    weights = {cpu: json.loads(r.stdout.strip().splitlines()[-1])["lstm"] for cpu, r in runs.items()}
+    t0 = time.perf_counter()
+    children = {cpu: start_on(cpu, ["lstm"]) for cpu in ("native", "EPYC-Rome-v1")}
+    weights = {cpu: result_of(cpu, child, t0)["lstm"] for cpu, child in children.items()}
     assert len(set(weights.values())) == 1, weights
