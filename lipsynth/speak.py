@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
+import json
 import logging
 import shutil
 import tempfile
@@ -42,7 +43,7 @@ import numpy as np
 from lipsynth.target import default_cache, landmarked_target, preprocess_target, warm_up_worker
 from pipeline.audio import front_ends
 from pipeline.face import identity
-from pipeline.errors import BadInputError, ParameterError
+from pipeline.errors import BadInputError, NoLipSyncError, ParameterError
 from pipeline.face.dlib_face import IOD_MM, LIP_POINTS, interocular
 from pipeline.face.geometry import rotation, rotation_angle_deg
 from pipeline.models.model_folder import load_speaker
@@ -210,10 +211,12 @@ class Prepared:
 
 
 def speak(audio: str, target: str, out: str, params: Params, model: str | None = None, retime: bool = True,
-          cache: Path | None = None, diagnostic: bool = False, emotion=None) -> dict:
+          cache: Path | None = None, diagnostic: bool = False, emotion=None, report_path: str | None = None) -> dict:
     """Write ``out`` (MP4): the speaker of ``target`` saying ``audio``.
 
-    Returns ms/frame per phase and a ``report`` (identity distance, path taken, 3D fit, self-check).
+    Returns ms/frame per phase and a ``report`` (identity distance, path taken, 3D fit, self-check), also
+    written as JSON to ``report_path`` when given. Raises ``NoLipSyncError`` (after writing ``out``) when most
+    output frames are the untouched target (``lip_sync_verdict``).
     """
     if not str(out).lower().endswith(".mp4"):
         raise ParameterError(f"--out {out}: expected an .mp4 file name")
@@ -223,7 +226,38 @@ def speak(audio: str, target: str, out: str, params: Params, model: str | None =
     ms = synthesize_and_composite(prep, str(audio), str(target), out)
     prep.report["self_check"] = ms.pop("self_check", None)
     ms["report"] = prep.report
+    if report_path is not None:
+        Path(report_path).write_text(json.dumps(prep.report, indent=1, default=str) + "\n")
+    lip_sync_verdict(prep.report["self_check"], prep.params.speak, target, out)
     return ms
+
+
+CAUSES = dict(face_error="the rendered nose and chin are off the target's (its 3D fit does not hold there)",
+              mouth_error="dlib reads another mouth on the output than the one synthesized",
+              sharpness="the rendered mouth is far sharper than the target's own",
+              not_posed="the target's head pose was not found (no face, or the 3D model does not fit)")
+
+
+def lip_sync_verdict(check: dict | None, s, target: str, out: str) -> float | None:
+    """Say plainly when lip sync was not made: the share of output frames left as the untouched target (the
+    self-check's fallbacks and frames without a head pose) and its main cause.
+
+    Logs one warning above ``s.warn_fallback_share``; raises ``NoLipSyncError`` above ``s.max_fallback_share``
+    (``out`` is written: the message says so). Returns the share (None without a self-check)."""
+    if not check or not check.get("frames"):
+        return None
+    counts = dict(check["failed_by"], not_posed=check["not_posed"])
+    share = (check["fallen_back"] + check["not_posed"]) / check["frames"]
+    if share <= s.warn_fallback_share:
+        return share
+    cause = max(counts, key=counts.get)
+    line = (f"lip sync not made on {share:.0%} of the output frames ({check['fallen_back'] + check['not_posed']} of "
+            f"{check['frames']}: the untouched target there); main cause: {CAUSES[cause]} ({counts[cause]} frames)")
+    if share > s.max_fallback_share:
+        raise NoLipSyncError(target, f"{line}; {out} was written anyway (speak.max_fallback_share="
+                                     f"{s.max_fallback_share})")
+    log.warning("%s: %s", target, line)
+    return share
 
 
 def synthesize_and_composite(prep: Prepared, audio: str, target: str, out: str) -> dict:
@@ -322,12 +356,14 @@ def main(argv=None) -> int:
                     help="params file (default: ./params.yaml, else the one installed with lipsynth)")
     ap.add_argument("--cache", type=Path, default=None,
                     help=f"folder for preprocessed targets (default: {default_cache()})")
+    ap.add_argument("--report", default=None, metavar="JSON",
+                    help="also write what speak found (identity, path, 3D fit, self-check with its fallbacks) as JSON")
     ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     a = ap.parse_args(argv)
     setup_logging(a.verbose)
     params = a.params or ("params.yaml" if Path("params.yaml").is_file() else Path(__file__).parents[1] / "params.yaml")
     return run_main(lambda: speak(a.audio, a.target, a.out, load_params(params), a.model,
-                                  not a.no_retime, a.cache, a.diagnostic, a.emotion))
+                                  not a.no_retime, a.cache, a.diagnostic, a.emotion, a.report))
 
 
 if __name__ == "__main__":

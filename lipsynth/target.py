@@ -27,6 +27,8 @@ log = logging.getLogger("lipsynth.target")
 PREPROCESS = ("ingest", "landmarks", "frontalize")
 CACHE_FORMAT = 7          # bump when the preprocessing code changes what it stores (6: bicubic crops and textures;
                           # 7: 3D models whose lips were fitted as depth rejected)
+FRONTALIZE_FORMAT = 3     # bump when only frontalize changes what it stores (ingest and landmarks are kept)
+                          # (2, 3: a factorisation that is no face, or stretched in depth, falls back to the depth prior)
 
 
 def warm_up_worker() -> None:
@@ -68,7 +70,8 @@ def cache_key(video: Path, params: Params) -> str:
 
 def frontalize_name(params: Params, shape3d: np.ndarray | None) -> str:
     """``frontalize-<hash>.zarr``: one store per frontalize settings (texture window) and 3D face model."""
-    h = hashlib.sha1(json.dumps(settings_of(params, ("frontalize",)), sort_keys=True, default=str).encode())
+    h = hashlib.sha1(json.dumps(dict(settings_of(params, ("frontalize",)), format=FRONTALIZE_FORMAT), sort_keys=True,
+                                default=str).encode())
     if shape3d is not None:
         h.update(np.ascontiguousarray(shape3d, np.float32).tobytes())
     return f"frontalize-{h.hexdigest()[:12]}.zarr"

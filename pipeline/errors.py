@@ -24,3 +24,10 @@ class BadInputError(LipsynthError):
         self.path = str(path)
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+
+class NoLipSyncError(BadInputError):
+    """The output was written, but most of its frames are the untouched target: no lip sync was made.
+
+    ``speak`` raises it after writing the file (the message says so), so a script sees a non-zero exit.
+    """

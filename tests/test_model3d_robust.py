@@ -85,3 +85,38 @@ def test_lips_fitted_as_depth_are_not_a_face(face3d):
     opened = face3d.copy()
     opened[[56, 57, 58, 65, 66, 67], 2] += 8.0                    # a jaw opened a little: still a face
     assert model3d._plausible(opened)
+
+
+def test_a_factorisation_that_is_no_face_falls_back_to_the_prior(face3d, monkeypatch, caplog):
+    """latsync_demo2 (a 20-s portrait phone clip): conditioning 6.21 passed the 6.0 threshold on landmark
+    noise, the factorisation put the chin 35 mm beside the nose and every candidate of the bundle
+    adjustment was rejected, so the factorisation itself was kept (median PnP error 0.064 IOD; the
+    composite drew a streak across the cheek). The prior start must take over."""
+    lms, K = stranger_clip(face3d, seed=0)
+    p = load_params("params.yaml").frontalize
+    p.min_conditioning = 0.0                                     # factorisation is chosen ...
+    garbage = face3d.copy()
+    garbage[:, 2] *= -1                                          # ... and comes out depth-inverted and
+    garbage[8] += (40.0, -120.0, 0.0)                            # with the chin above the nose: no face
+    assert not model3d._plausible(model3d._to_canonical(garbage, allow_reflection=False))
+    monkeypatch.setattr(model3d, "factorize", lambda _lms: model3d._to_canonical(garbage, allow_reflection=False))
+    with caplog.at_level("WARNING", logger="lipsynth.frontalize"):
+        shape, report = build_model(lms, [K] * len(lms), p)
+    assert report["method"].startswith("prior") and "not a face" in caplog.text
+    assert model3d._plausible(shape)
+    errs = model3d.frame_errors(shape, list(lms), [K] * len(lms))
+    assert np.median(errs) < 1.5
+
+
+def test_when_no_fit_is_a_face_the_fallback_is_kept(face3d):
+    """``bundle_adjust(..., fallback=)``: a start that is no face and whose refinements are none either
+    gives the fallback, not the start."""
+    lms, K = stranger_clip(face3d, seed=1)
+    runaway = face3d.copy()
+    runaway[20, 2] = 2500.0                                      # one point metres along its ray: so are its flip
+    assert not model3d._plausible(runaway)                       # and the fit regularised towards it
+    shape, _, after = model3d._select(runaway, runaway, 1.0, 1.0, list(lms), [K] * len(lms), fallback=face3d)
+    assert np.array_equal(shape, face3d)
+    assert after == pytest.approx(np.sqrt(np.mean(model3d.frame_errors(face3d, list(lms), [K] * len(lms)) ** 2)))
+    shape, _, _ = model3d._select(runaway, runaway, 1.0, 1.0, list(lms), [K] * len(lms))
+    assert np.array_equal(shape, runaway)                        # no fallback given: the start, as before

@@ -5,6 +5,7 @@ import sys
 import numpy as np
 import pytest
 
+from pipeline.params import load_params
 from tests.conftest import ROOT, shared
 from tests.helpers import one_error_line
 
@@ -72,3 +73,30 @@ def test_stage_advice_about_training_corpora_is_removed_for_speak():
     msg = "/v/a.mp4: face tracked in only 3.0% of frames (landmarks.min_valid_fraction=0.5) — set data.on_bad_input: skip to leave it out"
     assert without_training_hints(msg) == ("/v/a.mp4: face tracked in only 3.0% of frames "
                                            "(landmarks.min_valid_fraction=0.5 of --params)")
+
+
+def _check(frames, fallen_back, not_posed=0, face=0, mouth=0, sharp=0):
+    return dict(frames=frames, checked=frames - not_posed, fallen_back=fallen_back, not_posed=not_posed,
+                failed_by=dict(face_error=face, mouth_error=mouth, sharpness=sharp))
+
+
+def test_lip_sync_verdict_says_when_lip_sync_was_not_made(caplog):
+    """latsync_demo2 before its 3D fit was mended: 479 of 480 frames fell back to the untouched target and
+    speak exited 0. Above a tenth: one line with the share and the cause; above half: a non-zero exit
+    whose line says the file was written."""
+    from lipsynth.speak import lip_sync_verdict
+    from pipeline.errors import NoLipSyncError
+    s = load_params(ROOT / "params.yaml").speak
+    with caplog.at_level("WARNING", logger="lipsynth.speak"):
+        assert lip_sync_verdict(_check(500, 40, face=40), s, "t.mp4", "o.mp4") == pytest.approx(0.08)
+    assert not caplog.records                                          # 8 %: quiet
+    with caplog.at_level("WARNING", logger="lipsynth.speak"):
+        share = lip_sync_verdict(_check(500, 60, not_posed=40, face=10, mouth=50), s, "t.mp4", "o.mp4")
+    assert share == pytest.approx(0.2)
+    (rec,) = caplog.records
+    assert "t.mp4" in rec.message and "20%" in rec.message and "dlib reads another mouth" in rec.message
+    with pytest.raises(NoLipSyncError) as exc:
+        lip_sync_verdict(_check(480, 479, face=479, mouth=12), s, "t.mp4", "o.mp4")
+    msg = str(exc.value)
+    assert msg.startswith("t.mp4: lip sync not made on 100%") and "3D fit" in msg and "o.mp4 was written" in msg
+    assert lip_sync_verdict(None, s, "t.mp4", "o.mp4") is None        # self-check off: nothing to say

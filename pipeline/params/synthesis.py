@@ -159,6 +159,10 @@ class Speak(Section):
         metadata={"help": "warn when the audio's mean MFCC is further from the training audio than this × the furthest of the corpus's held-out clips"})
     target_shard_frames: int = field(default=64,
         metadata={"help": "frames per shard of a target's cached stores (one task each; a multiple of the chunk_frames)", "advanced": True, "min": 1})
+    warn_fallback_share: float = field(default=0.1,
+        metadata={"help": "say so (one line: the share and its cause) when more than this share of the output frames fell back to the untouched target"})
+    max_fallback_share: float = field(default=0.5,
+        metadata={"help": "exit non-zero when more than this share of the output frames fell back to the untouched target (the file is still written: the line says so)"})
 
 
 @dataclass

@@ -291,6 +291,7 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
     ms = {k: v / len(mapping) * 1000 for k, v in timing.items()}       # thread time per frame
     if p.self_check:
         ms["self_check"] = self_check_summary(checks, output.ok, p)
+        ms["self_check"]["not_posed"] = int((~np.asarray(tgt.pose_ok)[mapping]).sum())   # left as the target
     return ms
 
 
@@ -298,8 +299,11 @@ def self_check_summary(checks: list[dict], ok: np.ndarray, p: Composite) -> dict
     """Counts and medians of the self-check over the output, logged in one line."""
     def median(key):
         return float(np.median([c[key] for c in checks])) if checks else None
-    summary = dict(checked=len(checks), fallen_back=int((~ok).sum()), median_error=median("error"),
-                   median_face_error=median("face_error"), median_sharpness=median("sharpness"))
+    summary = dict(checked=len(checks), frames=len(ok), fallen_back=int((~ok).sum()), median_error=median("error"),
+                   median_face_error=median("face_error"), median_sharpness=median("sharpness"),
+                   failed_by=dict(mouth_error=sum(c["error"] > p.check_max_error for c in checks),
+                                  face_error=sum(c.get("face_error", 0.0) > p.check_max_face_error for c in checks),
+                                  sharpness=sum(c["sharpness"] > p.check_max_sharpness for c in checks)))
     log.info("self-check: %d frames checked, %d fell back to the target frame (mouth error > %.2f × IOD, "
              "nose and chin > %.2f × IOD or sharpness > %.1f×; median errors %.3f and %.3f, median sharpness "
              "%.2f×)", summary["checked"], summary["fallen_back"], p.check_max_error, p.check_max_face_error,

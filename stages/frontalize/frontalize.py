@@ -60,7 +60,14 @@ def build_model(lms: np.ndarray, Ks: list[np.ndarray], p: Frontalize) -> tuple[n
     kappa = model3d.conditioning(lms)
     method = "factorization" if kappa >= p.min_conditioning else "prior"
     start = model3d.factorize(lms) if method == "factorization" else model3d._to_canonical(prior)
-    shape, before, after = model3d.bundle_adjust(start, list(lms), Ks, p.ba_iterations)
+    if method == "factorization" and not model3d._plausible(start):
+        # a face that barely turns can pass the conditioning test on landmark noise alone (an
+        # expressive mouth, a nodding head): its factorisation is then no face at all
+        log.warning("3D model: the factorisation is not a face (conditioning s3/s4 = %.2f): starting from the "
+                    "person's mean 2D shape with the anthropometric depth prior instead", kappa)
+        method, start = "prior (factorisation not a face)", model3d._to_canonical(prior)
+    shape, before, after = model3d.bundle_adjust(start, list(lms), Ks, p.ba_iterations,
+                                                 fallback=model3d._to_canonical(prior))
     report = dict(method=method, conditioning=kappa, ba_rms_before=before, ba_rms_after=after, n_frames=len(lms))
     log.info("3D model: %s start (conditioning s3/s4 = %.2f, threshold %.1f), bundle adjustment over %d frames: "
              "RMS %.2f → %.2f px", method, kappa, p.min_conditioning, len(lms), before, after)

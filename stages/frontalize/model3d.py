@@ -29,6 +29,9 @@ RIGID = np.array([0, 1, 15, 16] + list(range(17, 36)) + [36, 39, 42, 45])
 MOUTH = np.arange(48, 68)
 LIP_MIDLINE = np.array([51, 62, 66, 57])      #: outer and inner lip centres, top to bottom
 MAX_LIP_STEP_MM = 20.0                        #: the prior's mid-line spans 6 mm; an open jaw adds a few
+MAX_DEPTH_MM = 1.5 * IOD_MM                   #: rigid points' depth extent: the prior's ≈ 75 mm (nose tip to the
+                                              #: jaw's top), a person's ≈ 70–100; a stretched fit (the bas-relief
+                                              #: ambiguity of a face that barely turns) reached 146
 
 # Anthropometric depth prior (mm behind the nose tip) for the 68 iBUG landmarks of an adult face.
 PRIOR_DEPTH = np.array(
@@ -157,7 +160,10 @@ def _plausible(X: np.ndarray) -> bool:
     """Is a canonical (68, 3) shape a face at all (finite, head-sized, nose in front, chin below)?
 
     Bundle adjustment of a short, nearly rigid clip can run off along its unobservable depth
-    direction (points 10⁶ mm deep, a depth-inverted or mirrored face) while its own RMS stays low.
+    direction (points 10⁶ mm deep, a depth-inverted or mirrored face) while its own RMS stays low;
+    a factorisation of a face that turns little can come out stretched in depth (twice a head's
+    depth: the render-back then smears the nose into the upper lip), so the rigid points may span
+    at most ``MAX_DEPTH_MM``.
     The lips are fitted after the rigid points with the poses fixed, and their motion (the mouth
     opens as the head nods) can pass for depth: a fit whose lips stand in front of the nose tip, or
     whose upper and lower lip are ``MAX_LIP_STEP_MM`` or more apart in depth, is no face either (the
@@ -166,7 +172,7 @@ def _plausible(X: np.ndarray) -> bool:
     if not np.all(np.isfinite(X)) or np.abs(X).max() > 300.0:
         return False
     z = X[:, 2]
-    return bool(np.ptp(z[RIGID]) < 250.0 and z[30] < min(z[LEO], z[REO]) and z[[0, 16]].mean() > z[30]
+    return bool(np.ptp(z[RIGID]) < MAX_DEPTH_MM and z[30] < min(z[LEO], z[REO]) and z[[0, 16]].mean() > z[30]
                 and X[8, 1] > X[30, 1] > X[27, 1]
                 and z[30] < z[MOUTH].min() and np.ptp(z[LIP_MIDLINE]) < MAX_LIP_STEP_MM)
 
@@ -228,7 +234,7 @@ def refine_with_prior(start: np.ndarray, observations: list[np.ndarray], cameras
 
 
 def bundle_adjust(shape: np.ndarray, observations: list[np.ndarray], cameras: list[np.ndarray],
-                  max_iterations: int = 100) -> tuple[np.ndarray, float, float]:
+                  max_iterations: int = 100, fallback: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
     """Refine ``shape`` with pycolmap bundle adjustment over frames.
 
     Parameters
@@ -236,6 +242,8 @@ def bundle_adjust(shape: np.ndarray, observations: list[np.ndarray], cameras: li
     shape : (68, 3) start shape (mm, canonical frame).
     observations : list of (68, 2) landmark pixels, one per frame.
     cameras : list of (3, 3) intrinsics, one per frame (frames of one video share values).
+    fallback : (68, 3) canonical shape kept when no fit is a face (``_plausible``), e.g. the
+        person's mean 2D shape with the anthropometric depth prior; None keeps ``shape``.
 
     Returns
     -------
@@ -296,10 +304,11 @@ def bundle_adjust(shape: np.ndarray, observations: list[np.ndarray], cameras: li
     solve(set(range(68)) - set(RIGID.tolist()), poses_free=False)
     after = _rms(rec, pids, observations, cameras)
     refined = np.array([rec.point3D(pids[k]).xyz for k in range(68)])
-    return _select(shape, _to_canonical(refined, allow_reflection=False), before, after, observations, cameras)
+    return _select(shape, _to_canonical(refined, allow_reflection=False), before, after, observations, cameras,
+                   fallback)
 
 
-def _select(start, refined, before, after, observations, cameras):
+def _select(start, refined, before, after, observations, cameras, fallback=None):
     """Keep the best of three fits by the per-frame PnP error they give (the way they are used).
 
     Candidates, in order of preference on a tie: the free bundle adjustment ``refined`` (canonical
@@ -324,7 +333,11 @@ def _select(start, refined, before, after, observations, cameras):
         log.info("bundle adjustment candidate %s: per-frame PnP RMS median %.2f px", name, med)
         if best is None or med < best[0]:
             best = (med, name, X, float(np.sqrt(np.mean(errs ** 2))) if rms is None else rms)
-    if best is None:                       # nothing face-like: the start, as it was given
+    if best is None:                       # nothing face-like: the prior if given, else the start as it was
+        if fallback is not None:
+            log.warning("3D model: no fit is a face: the depth prior on the person's mean shape is kept")
+            errs = frame_errors(fallback, observations, cameras)
+            return np.asarray(fallback, np.float64), before, float(np.sqrt(np.mean(errs ** 2)))
         return start, before, after
     if best[1] != "free":
         log.info("3D model: %s fit kept (free bundle adjustment: %s)", best[1],

@@ -1,4 +1,4 @@
-"""Personalization from a base model: four candidates, scored on the person's held-out part, the best kept.
+"""Personalization from a base model: five candidates, scored fold by fold over the person's segments.
 
 ``lipsynth personalize`` preprocesses a person's footage and calls ``run``. From the base model (the
 shipped ``models/base`` or ``--base``), whose read-out is first re-expressed in the person's mouth
@@ -14,16 +14,23 @@ PCA (``fine_tune.initial_state``: W₀ = s·C_n·C_bᵀ·W_b), it builds
    y_t ≈ V x_t + b, shrunk toward V = 0 (the model's ``skip`` map; the LSTM's read-out set to 0):
    what the pretrained encoder says about this person's mouth without the base's recurrence, which
    learned one read speaker's timing;
-4. ``fine_tune`` — every weight trained from the better of 2 and 3 (by cross-validation error) for
+4. ``average`` — the mean of the shapes of 1–3, itself one linear model (each read-out is linear);
+5. ``fine_tune`` — every weight trained from the better of 2 and 3 (by cross-validation error) for
    ``train.steps``, early stopping on the held-out part (``patience``) and an L2 pull toward the
    starting weights, λ_sp Σ ‖θ − θ₀‖² (L2-SP; ``stages/train/lstm.train``'s ``anchor``).
 
 In 2 and 3, λ = α · (training frames), α chosen by leave-one-segment-out cross-validation on the
-training part (the held-out part is not looked at). Each candidate's held-out mouth error, its ratio
-to the mean shape and its opening correlation are logged and written to the metrics; the lowest
-mouth error is kept, so a personalized model is never worse than its base on that part. When even
-the best is worse than the person's mean mouth shape, one warning line says so (the model is still
-written: ``speak`` needs one, and the figures are in the metrics).
+training part. Selection (``stages/train/selection.py``): the person's segments, in time order, are cut
+into ``selection.FOLDS`` blocks; each block is held out while 2 and 3 are refitted on the rest, and every
+linear candidate (1–4) is scored on it by its utility, opening correlation at lag 0 plus the share of
+the mean shape's mouth error removed. A candidate replaces the base only when its per-fold gain over the
+base is above noise (mean more than one standard error above 0); among those the best mean is kept.
+``fine_tune`` (trained once: its early stopping looks at the held-out part) is kept only when it beats the
+base on the held-out segments beyond noise and the k-fold choice there too. Every candidate's per-fold
+figures are logged and written to the metrics (``folds``), with each candidate's held-out figures (the
+final fits, trained on the training part). When even the kept candidate is worse than the person's mean
+mouth shape on the held-out part, one warning line says so (the model is still written: ``speak`` needs
+one, and the figures are in the metrics).
 """
 from __future__ import annotations
 
@@ -39,14 +46,14 @@ from pipeline.models.model_folder import save_model
 from pipeline.models.speaker_bank import export_speaker
 from pipeline.models.training_budget import Budget
 from pipeline.params import Params, as_dict
-from stages.train import fine_tune, lstm
+from stages.train import fine_tune, lstm, offsets, selection
 from stages.train.train import (encoder_settings, feature_normalisation, load_sequences, rest_shape, score,
                                 write_outputs)
 
 log = logging.getLogger("lipsynth.adapt")
 ALPHAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)      # ridge strength per training frame (read-out candidate)
 BIAS_SHRINK = 1e-3                            # λ_b / λ: the bias follows the person's own mean shape
-CANDIDATES = ("base", "readout", "encoder_readout", "fine_tune")
+CANDIDATES = ("base", "readout", "encoder_readout", "average", "fine_tune")
 
 
 def hidden_states(model: DelayedLSTM, x: np.ndarray, delay: int, device) -> np.ndarray:
@@ -120,25 +127,70 @@ def with_readout(init: dict, n_in: int, k: int, out_w, out_b, skip_w=None) -> tu
     return model.eval(), state
 
 
+def linear_fits(init: dict, seqs: list, delay: int, device) -> dict:
+    """The two ridge read-outs (module doc 2, 3) fitted on normalised ``seqs`` [(x, y, ok)]:
+    {readout: (W, b, α, cv), encoder_readout: (V, c, α, cv)}."""
+    W0, b0 = init["state"]["out.weight"].numpy().astype(np.float64), init["state"]["out.bias"].numpy().astype(np.float64)
+    n_in, k = seqs[0][0].shape[1], seqs[0][1].shape[1]
+    base, _ = with_readout(init, n_in, k, W0, b0)
+    base = base.to(device)
+    Ys = [y[ok] for _, y, ok in seqs]
+    n = sum(len(y) for y in Ys)
+    Hs = [hidden_states(base, x, delay, device)[ok] for x, _, ok in seqs]
+    alpha_h, cv_h = choose_alpha(Hs, Ys, W0, b0)
+    W, b = ridge_readout(np.concatenate(Hs), np.concatenate(Ys), W0, b0, alpha_h * n)
+    Zs = [input_states(x, delay)[ok] for x, _, ok in seqs]
+    alpha_z, cv_z = choose_alpha(Zs, Ys, np.zeros((k, n_in)), b0)
+    V, c = ridge_readout(np.concatenate(Zs), np.concatenate(Ys), np.zeros((k, n_in)), b0, alpha_z * n)
+    return dict(readout=(W, b, alpha_h, cv_h), encoder_readout=(V, c, alpha_z, cv_z))
+
+
+def linear_models(init: dict, n_in: int, k: int, fits: dict, device) -> dict:
+    """{name: (DelayedLSTM, state dict)} of the base, the two read-outs and their ``average``: the mean of
+    the three candidates' shapes, itself one model (every read-out is linear: the mean of the LSTM read-outs
+    plus a third of the encoder map)."""
+    W0, b0 = init["state"]["out.weight"].numpy().astype(np.float64), init["state"]["out.bias"].numpy().astype(np.float64)
+    W, b = fits["readout"][:2]
+    V, c = fits["encoder_readout"][:2]
+    made = dict(base=with_readout(init, n_in, k, W0, b0), readout=with_readout(init, n_in, k, W, b),
+                encoder_readout=with_readout(init, n_in, k, np.zeros_like(W0), c, V),
+                average=with_readout(init, n_in, k, (W0 + W) / 3, (b0 + b + c) / 3, V / 3))
+    return {name: (model.to(device), state) for name, (model, state) in made.items()}
+
+
+def fold_figures(init: dict, segments: list, plan: list, mean, std, delay: int, device, basis, iod_px) -> dict:
+    """Per-fold figures of the linear candidates: for each block of ``plan`` held out, the read-outs fitted on
+    the other segments and every candidate scored on the block. Returns {name: [dict(mouth_error_px,
+    ratio_to_mean_shape, median_opening_corr, utility) per fold]}."""
+    norm = lambda s: (((s["x"] - mean) / std).astype(np.float32), s["y"].astype(np.float64), s["ok"])
+    out: dict[str, list] = {}
+    for block in plan:
+        held = [segments[i] for i in block]
+        rest = [s for i, s in enumerate(segments) if i not in set(block.tolist())]
+        seqs = [norm(s) for s in rest]
+        models = linear_models(init, seqs[0][0].shape[1], seqs[0][1].shape[1], linear_fits(init, seqs, delay, device),
+                               device)
+        fold = dict(val=held)
+        shape = np.concatenate([s["y"][s["ok"]] for s in rest]).mean(0)
+        ref = score([np.tile(shape, (len(s["x"]), 1)) for s in held], fold, basis, iod_px)["mouth_error_px"]
+        for name, (model, _) in models.items():
+            f = score([predict_sequence(model, norm(s)[0], delay, device) for s in held], fold, basis, iod_px)
+            ratio = f["mouth_error_px"] / ref
+            out.setdefault(name, []).append(dict(mouth_error_px=f["mouth_error_px"], ratio_to_mean_shape=ratio,
+                                                 median_opening_corr=f["median_opening_corr"],
+                                                 utility=selection.utility(f["median_opening_corr"], ratio)))
+    return out
+
+
 def candidate_models(init: dict, data: dict, mean, std, p, delay: int, device, anchor: float):
-    """The four candidates as {name: DelayedLSTM} (module doc) and notes on how each was made."""
+    """The candidates as {name: DelayedLSTM} (module doc; fitted on the training part) and notes on how each
+    was made."""
     norm = lambda s: (((s["x"] - mean) / std).astype(np.float32), s["y"].astype(np.float64), s["ok"])
     train_seqs = [norm(s) for s in data["train"]]
     n_in, k = train_seqs[0][0].shape[1], train_seqs[0][1].shape[1]
-    W0, b0 = init["state"]["out.weight"].numpy().astype(np.float64), init["state"]["out.bias"].numpy().astype(np.float64)
-    base, _ = with_readout(init, n_in, k, W0, b0)
-    base = base.to(device)
-    Ys = [y[ok] for _, y, ok in train_seqs]
-    n = sum(len(y) for y in Ys)
-    Hs = [hidden_states(base, x, delay, device)[ok] for x, _, ok in train_seqs]
-    alpha_h, cv_h = choose_alpha(Hs, Ys, W0, b0)
-    W, b = ridge_readout(np.concatenate(Hs), np.concatenate(Ys), W0, b0, alpha_h * n)
-    readout, readout_state = with_readout(init, n_in, k, W, b)
-    Zs = [input_states(x, delay)[ok] for x, _, ok in train_seqs]
-    V0 = np.zeros((k, n_in))
-    alpha_z, cv_z = choose_alpha(Zs, Ys, V0, b0)
-    V, c = ridge_readout(np.concatenate(Zs), np.concatenate(Ys), V0, b0, alpha_z * n)
-    encoder, encoder_state = with_readout(init, n_in, k, np.zeros_like(W0), c, V)
+    fits = linear_fits(init, train_seqs, delay, device)
+    models = linear_models(init, n_in, k, fits, device)
+    (_, _, alpha_h, cv_h), (_, _, alpha_z, cv_z) = fits["readout"], fits["encoder_readout"]
     for name, alpha, cv in (("read-out", alpha_h, cv_h), ("encoder read-out", alpha_z, cv_z)):
         log.info("%s candidate: ridge α = %g per frame (leave-one-segment-out error %s)", name, alpha,
                  ", ".join(f"{a:g}: {e:.3f}" for a, e in cv.items()) or "— one training segment")
@@ -148,16 +200,57 @@ def candidate_models(init: dict, data: dict, mean, std, p, delay: int, device, a
     tuned, history, kept = lstm.train([f32(s) for s in data["train"]], [f32(s) for s in data["val"]],
                                       replace(p, fine_tune="all"), delay, device, seed=p.seed, desc="fine-tune",
                                       budget=budget,
-                                      init=dict(state=encoder_state if start == "encoder_readout" else readout_state,
-                                                hidden=init["hidden"], layers=init["layers"], anchor=anchor,
-                                                skip=start == "encoder_readout"))
+                                      init=dict(state=models[start][1], hidden=init["hidden"], layers=init["layers"],
+                                                anchor=anchor, skip=start == "encoder_readout"))
     notes = dict(readout=dict(alpha=alpha_h, cv_error=cv_h), encoder_readout=dict(alpha=alpha_z, cv_error=cv_z),
                  fine_tune=dict(start=start, anchor=anchor, steps_run=history[-1]["step"], step_kept=kept,
                                 history=history))
-    return dict(base=base, readout=readout.to(device), encoder_readout=encoder.to(device), fine_tune=tuned), notes
+    return dict({name: model for name, (model, _) in models.items()}, fine_tune=tuned), notes
 
 
-def run(params: Params, base_folder: str, anchor: float = 1e-3) -> dict:
+def align_recordings(data: dict, mean, std, delay: int) -> dict:
+    """Estimate each source recording's audio–video offset (``stages/train/offsets``) from all its segments
+    (clips of one segment each share one offset, as a corpus recorded in one set-up does) and align its targets
+    in place (100-Hz ``y``/``ok`` shifted, frame times moved for scoring). Logs one line per recording;
+    returns {recording: dict(lag_ms, reliable, reason, cv_error)}."""
+    by_recording: dict[str, list] = {}
+    for s in data["train"] + data["val"]:
+        by_recording.setdefault(offsets.recording_of(s["name"]), []).append(s)
+    single = [k for k, v in by_recording.items() if len(v) == 1]
+    if len(single) > 1:                 # whole clips (one segment each): one offset for them all, as for a corpus
+        by_recording[f"{len(single)} whole clips"] = [by_recording.pop(k)[0] for k in single]
+    found = {}
+    for name, segs in by_recording.items():
+        xs = [input_states(((s["x"] - mean) / std).astype(np.float32), delay) for s in segs]
+        est = offsets.estimate(xs, [s["y"].astype(np.float64) for s in segs], [np.asarray(s["ok"], bool) for s in segs])
+        found[name] = dict(offset_ms=10 * est["lag"], best_lag_ms=10 * est["best"] if "best" in est else None,
+                           reliable=est["reliable"], reason=est["reason"],
+                           cv_error={str(k): round(v, 3) for k, v in est["errors"].items()})
+        if not est["reliable"]:
+            log.warning("%s: its audio–video offset cannot be estimated (%s): no shift", name, est["reason"])
+            continue
+        log.info("%s: audio–video offset %+d ms (%s; the audio best predicts its mouth at %+d ms, footage in sync "
+                 "at %+d ms)%s", name, 10 * est["lag"], "the video is late" if est["lag"] > 0 else "the video is early"
+                 if est["lag"] < 0 else "in sync", 10 * est["best"], 10 * offsets.SYNCED_LAG,
+                 ": targets aligned" if est["lag"] else "")
+        for s in segs:
+            s["y"], s["ok"] = offsets.shift(s["y"], np.asarray(s["ok"], bool), est["lag"])
+            s["frame_time"] = np.asarray(s["frame_time"]) - est["lag"] / 100.0
+    return found
+
+
+def segment_utilities(model, data: dict, mean_shape, mean, std, delay: int, device, basis, iod_px) -> list[float]:
+    """``selection.utility`` of ``model`` on each held-out segment (``data["val"]``) alone."""
+    out = []
+    for s in data["val"]:
+        one = dict(val=[s])
+        ref = score([np.tile(mean_shape, (len(s["x"]), 1))], one, basis, iod_px)["mouth_error_px"]
+        f = score([predict_sequence(model, ((s["x"] - mean) / std).astype(np.float32), delay, device)], one, basis, iod_px)
+        out.append(selection.utility(f["median_opening_corr"], f["mouth_error_px"] / ref))
+    return out
+
+
+def run(params: Params, base_folder: str, anchor: float = 1e-3, align_offsets: bool = True) -> dict:
     """Personalize from ``base_folder`` on the stores of ``params`` (ingest, pca, whisper/phonetic);
     write the kept model (with the person's speaker) to ``train.out`` and the metrics to
     ``train.metrics``. Returns the metrics."""
@@ -171,6 +264,7 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3) -> dict:
     init = fine_tune.initial_state(base_folder, p.features, encoder, basis, pattrs["iod_px"], device)
     mean, std = init["feature_mean"], init["feature_std"]
     delay = int(init["base_config"]["delay"])
+    found_offsets = align_recordings(data, mean, std, delay) if align_offsets else {}
     models, notes = candidate_models(init, data, mean, std, p, delay, device, anchor)
     own = data["train"]
     mean_shape = np.concatenate([s["y"][s["ok"]] for s in own]).mean(0)
@@ -183,15 +277,34 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3) -> dict:
         log.info("candidate %-9s held-out mouth error %.3f px (%.2f %% IOD), ratio to the mean shape %.2f, opening "
                  "correlation %.2f", name, figures[name]["mouth_error_px"], figures[name]["mouth_error_iod_pct"],
                  figures[name]["ratio_to_mean_shape"], figures[name]["median_opening_corr"])
-    chosen = min(CANDIDATES, key=lambda c: figures[c]["mouth_error_px"])
-    log.info("kept: %s", chosen)
+    segments = sorted(data["train"] + data["val"], key=lambda s: s["name"])          # the footage in time order
+    plan = selection.fold_plan(len(segments), selection.FOLDS)
+    per_fold = fold_figures(init, segments, plan, mean, std, delay, device, basis, pattrs["iod_px"])
+    chosen, table = selection.choose({n: [f["utility"] for f in fs] for n, fs in per_fold.items()})
+    per_segment = {n: segment_utilities(m, data, mean_shape, mean, std, delay, device, basis, pattrs["iod_px"])
+                   for n, m in models.items()}
+    fine = selection.beats(np.subtract(per_segment["fine_tune"], per_segment["base"])) and \
+        np.mean(per_segment["fine_tune"]) > np.mean(per_segment[chosen])
+    for name, folds in per_fold.items():
+        t = table[name]
+        log.info("candidate %-15s folds (ratio / corr): %s → utility %.3f, gain over the base %+.3f ± %.3f%s", name,
+                 " · ".join(f"{f['ratio_to_mean_shape']:.2f} / {f['median_opening_corr']:.2f}" for f in folds),
+                 t["mean"], t["gain"], t["gain_se"], " (beats the base)" if t["beats_base"] else "")
+    log.info("candidate fine_tune       held-out segments (utility): %s against the base's %s%s",
+             " · ".join(f"{u:.2f}" for u in per_segment["fine_tune"]), " · ".join(f"{u:.2f}" for u in per_segment["base"]),
+             " (beats the base and the k-fold choice)" if fine else "")
+    chosen = "fine_tune" if fine else chosen
+    log.info("kept: %s (%d folds of %d segments; a candidate replaces the base only when its gain is above %g "
+             "standard errors)", chosen, len(plan), len(segments), selection.Z_NOISE)
     if figures[chosen]["ratio_to_mean_shape"] >= 1.0:
         log.warning("the personalized model is worse than the person's mean mouth shape on the held-out part "
                     "(ratio %.2f): their tracked lips follow the audio too little to learn from this footage",
                     figures[chosen]["ratio_to_mean_shape"])
     model = models[chosen].cpu()
     metrics = dict(model="lstm", features=p.features, delay_steps=delay, base=str(base_folder), chosen=chosen,
-                   candidates=figures, adaptation=notes, val=figures[chosen], baseline_mean_shape=baseline,
+                   candidates=figures, folds=dict(plan=[[segments[i]["name"] for i in b] for b in plan],
+                                                  per_fold=per_fold, table=table, fine_tune_segments=per_segment),
+                   adaptation=notes, offsets=found_offsets, val=figures[chosen], baseline_mean_shape=baseline,
                    ratio_to_mean_shape=figures[chosen]["ratio_to_mean_shape"])
     rest = rest_shape(own, params.ingest.out)
     with atomic_output(p.out) as tmp:
