@@ -44,7 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 YARDSTICK = ROOT.parent / "shared" / "tools" / "lipsync_yardstick.py"
 BAND_HZ = (1.0, 8.0)
-CANDIDATES = ("base", "readout", "encoder_readout", "fine_tune")
+CANDIDATES = ("base", "readout", "encoder_readout", "average", "retrieval", "fine_tune")
 
 
 def videos_of(spec: str) -> tuple[str, list[str]]:
@@ -176,7 +176,7 @@ def fmt(x, spec=".2f"):
 
 def table(rows: list[dict]) -> str:
     lines = ["| person | held out | floor: re-encode ratio / corr | mouth variance following speech | in-store ratio (corr): "
-             "base · readout · encoder_readout · fine_tune | kept | `speak` ratio / corr lag 0 / best | `speak` sharpness / "
+             "base · readout · encoder_readout · average · retrieval · fine_tune | kept | `speak` ratio / corr lag 0 / best | `speak` sharpness / "
              "flicker (yardstick: original ÷ output) | oracle render ratio / corr |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:

@@ -141,6 +141,7 @@ def main() -> None:
     ap.add_argument("--model", default="models/base", help="model folder (default: the shipped base)")
     ap.add_argument("--params", default=None, help="params file for speak (default: ./params.yaml)")
     ap.add_argument("--work", type=Path, default=ROOT / "runs" / "strangers")
+    ap.add_argument("--cache", type=Path, default=None, help="preprocessed targets (default: WORK/cache)")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "strangers.json")
     ap.add_argument("--table", type=Path, default=ROOT / "docs" / "strangers.md")
     a = ap.parse_args()
@@ -151,7 +152,7 @@ def main() -> None:
     a.work.mkdir(parents=True, exist_ok=True)
     rows = []
     for clip in clips:
-        rows.append(run_clip(clip.resolve(), a.model, a.work, a.work / "cache", a.params))
+        rows.append(run_clip(clip.resolve(), a.model, a.work, a.cache or a.work / "cache", a.params))
         print(f"{clip.name}: rc {rows[-1]['rc']}, made on {fmt(rows[-1]['made_share'], '.0%')} "
               f"({rows[-1]['seconds']} s) {rows[-1].get('message', '')}", flush=True)
     score(rows, clips, a.work)
@@ -167,7 +168,15 @@ def main() -> None:
     plot(rows, a.out.with_suffix(".png"))
     text = table(rows, summ)
     a.table.parent.mkdir(parents=True, exist_ok=True)
-    a.table.write_text(f"<!-- written by bench/strangers.py at {stamp} (model {a.model}); do not edit -->\n{text}")
+    a.table.write_text(f"<!-- written by bench/strangers.py at {stamp} (model {a.model}); do not edit -->\n"
+                       f"# Strangers: lip sync on people no model has met\n\n"
+                       f"Each clip of `../shared/data/strangers/` (nine people talking naturally; portrait phone video "
+                       f"and small faces among them) gets its own audio through `lipsynth speak --no-retime --model "
+                       f"{a.model}` into itself, scored by the independent yardstick (`../shared/tools/"
+                       f"lipsync_yardstick.py`: dlib on the output against the original). *Lip sync made on* is the "
+                       f"share of output frames that are not the untouched target (`speak --report`). Measured at "
+                       f"{stamp}, {datetime.date.today().isoformat()}, by `python bench/strangers.py`; the figures "
+                       f"are in `results/strangers.json`.\n\n{text}")
     print(text)
     print(f"wrote {a.out}, {a.out.with_suffix('.png')} and {a.table}")
 

@@ -40,9 +40,10 @@ class ModelError(LipsynthError):
 
 
 def save_model(folder, model, config: dict, feature_mean, feature_std, basis: dict, pca_attrs: dict,
-               rest_coeffs=None) -> None:
+               rest_coeffs=None, extra_arrays: dict | None = None) -> None:
     """An LSTM model folder; ``rest_coeffs`` (k,): the PCA coefficients of the mouth in the training
-    audio's silent stretches (prediction rests the mouth there)."""
+    audio's silent stretches (prediction rests the mouth there); ``extra_arrays``: more arrays for
+    arrays.npz (a retrieval database: ``retrieval_keys``, ``retrieval_values``)."""
     import torch
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -51,6 +52,7 @@ def save_model(folder, model, config: dict, feature_mean, feature_std, basis: di
                   iod_px=pca_attrs["iod_px"], format=1)
     (folder / "config.json").write_text(json.dumps(config, indent=2))
     extra = {} if rest_coeffs is None else {"rest_coeffs": np.asarray(rest_coeffs, np.float32)}
+    extra.update(extra_arrays or {})
     np.savez(folder / "arrays.npz", feature_mean=feature_mean, feature_std=feature_std,
              pca_mean=basis["mean"], pca_components=basis["components"], **extra)
 

@@ -23,7 +23,7 @@ from pipeline.audio import audio_features
 from pipeline.audio import front_ends
 from pipeline.io import media
 from pipeline.errors import BadInputError, ParameterError
-from pipeline.models import model_ensemble
+from pipeline.models import model_ensemble, mouth_retrieval
 from pipeline.models.model_folder import check_model, read_config
 from pipeline.models.mouth_pca import reconstruct
 
@@ -122,6 +122,10 @@ def predict_mouth(samples: np.ndarray, model_dir, fps: float, chunk_seconds: flo
     x = (x - arrays["feature_mean"]) / arrays["feature_std"]
     chunk = int(chunk_seconds * 100) if chunk_seconds else None
     c100 = predict_sequence(model, x.astype(np.float32), config["delay"], dev, chunk)
+    if "retrieval_keys" in arrays:             # a personalized model kept the person's own shapes (mouth_retrieval)
+        r = config["retrieval"]
+        c100 = mouth_retrieval.retrieve(mouth_retrieval.keys(c100, r["context"], r["step"]), arrays["retrieval_keys"],
+                                        arrays["retrieval_values"], r["k"], r["smooth"], r["step"]).astype(np.float32)
     if "rest_coeffs" in arrays:
         c100 = rest_in_silence(c100, samples, arrays["rest_coeffs"])
     n = frame_count(len(samples), fps)

@@ -119,7 +119,7 @@ def read_pool(stores: dict, entry: dict, p: Synthesize):
     return tuple(parts)
 
 
-def retarget(lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray) -> np.ndarray:
+def retarget(lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray, max_spread_gain: float = 1.0) -> np.ndarray:
     """Predicted lip shapes of a model trained on another corpus, moved onto the target's mouth.
 
     Each shape keeps its displacement from the model's mean shape, scaled by the ratio of the
@@ -128,14 +128,26 @@ def retarget(lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray
     without this the nearest candidates (§3.2.1) are the target's frames that happen to be
     furthest from its own mouth position.
 
+    ``max_spread_gain`` > 1 also widens the displacements toward the target's own mouth motion: the
+    RMS distance of the target frames' shapes from their mean over that of the scaled predictions,
+    clipped to [1, max_spread_gain]. A model of one read speaker predicts a natural talker's opening
+    at a quarter to a third of its own spread (the strangers of bench/strangers.py), so the nearest
+    candidates all sit about the target's mean mouth and the rendered opening barely moves.
+
     lips : (N, 18, 2); model_mean : (18, 2); target_shapes : (M, 18, 2) texture px → (N, 18, 2).
     """
     target_mean = np.nanmean(target_shapes, axis=0)
     width = lambda s: np.linalg.norm(s[6] - s[0])                 # 48 → 54, the mouth corners
     scale = width(target_mean) / width(model_mean)
-    log.info("re-targeting predicted mouth shapes onto the target's mean mouth (offset %.1f px, width × %.2f)",
-             float(np.linalg.norm((target_mean - model_mean).mean(0))), scale)
-    return target_mean + (lips - model_mean) * scale
+    moved = (lips - model_mean) * scale
+    gain = 1.0
+    if max_spread_gain > 1.0:
+        rms = lambda d: float(np.sqrt(np.nanmean(np.sum(d ** 2, axis=-1))))
+        own, predicted = rms(target_shapes - target_mean), rms(moved - moved.mean(0))
+        gain = float(np.clip(own / predicted, 1.0, max_spread_gain)) if predicted > 0 and np.isfinite(own) else 1.0
+    log.info("re-targeting predicted mouth shapes onto the target's mean mouth (offset %.1f px, width × %.2f, "
+             "spread × %.2f)", float(np.linalg.norm((target_mean - model_mean).mean(0))), scale, gain)
+    return target_mean + moved.mean(0) + (moved - moved.mean(0)) * gain if gain != 1.0 else target_mean + moved
 
 
 def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray, fps: float, p: Synthesize):
@@ -286,7 +298,7 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
     pool, pool_tex, pool_cloth, flm, pose = read_pool(stores, entry, p)
     shapes = flm[:, LIP_POINTS]
     if p.retarget == "always" or (p.retarget == "auto" and not same_corpus):
-        lips = retarget(lips, mouth["mean_shape"], shapes)
+        lips = retarget(lips, mouth["mean_shape"], shapes, p.max_spread_gain)
     up, lo = p.teeth_upper, p.teeth_lower
     def to_pool(j):
         hit = np.flatnonzero(pool == entry["first_frame"] + j) if j is not None else None

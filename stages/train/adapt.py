@@ -41,6 +41,7 @@ from dataclasses import replace
 import numpy as np
 
 from pipeline.io.store import atomic_output
+from pipeline.models import mouth_retrieval
 from pipeline.models.delayed_lstm import DelayedLSTM, pick_device, predict_sequence
 from pipeline.models.model_folder import save_model
 from pipeline.models.speaker_bank import export_speaker
@@ -53,7 +54,7 @@ from stages.train.train import (encoder_settings, feature_normalisation, load_se
 log = logging.getLogger("lipsynth.adapt")
 ALPHAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)      # ridge strength per training frame (read-out candidate)
 BIAS_SHRINK = 1e-3                            # λ_b / λ: the bias follows the person's own mean shape
-CANDIDATES = ("base", "readout", "encoder_readout", "average", "fine_tune")
+CANDIDATES = ("base", "readout", "encoder_readout", "average", "retrieval", "fine_tune")
 
 
 def hidden_states(model: DelayedLSTM, x: np.ndarray, delay: int, device) -> np.ndarray:
@@ -158,6 +159,20 @@ def linear_models(init: dict, n_in: int, k: int, fits: dict, device) -> dict:
     return {name: (model.to(device), state) for name, (model, state) in made.items()}
 
 
+def retrieval_database(base, seqs: list, delay: int, device) -> tuple[np.ndarray, np.ndarray] | None:
+    """(keys, shapes) of the person's valid training steps for ``pipeline/models/mouth_retrieval``: the base's
+    predictions with context as keys, the tracked PCA coefficients as values; None when the footage holds
+    too few (``MIN_FRAMES``) steps of a moving mouth to retrieve from."""
+    ks, vs = [], []
+    for x, y, ok in seqs:
+        ks.append(mouth_retrieval.keys(predict_sequence(base, x, delay, device))[ok])
+        vs.append(y[ok])
+    values = np.concatenate(vs)
+    if len(values) < mouth_retrieval.MIN_FRAMES or float(values.std(0).max()) < 1e-6:
+        return None
+    return np.concatenate(ks).astype(np.float32), values.astype(np.float32)
+
+
 def fold_figures(init: dict, segments: list, plan: list, mean, std, delay: int, device, basis, iod_px) -> dict:
     """Per-fold figures of the linear candidates: for each block of ``plan`` held out, the read-outs fitted on
     the other segments and every candidate scored on the block. Returns {name: [dict(mouth_error_px,
@@ -173,8 +188,13 @@ def fold_figures(init: dict, segments: list, plan: list, mean, std, delay: int, 
         fold = dict(val=held)
         shape = np.concatenate([s["y"][s["ok"]] for s in rest]).mean(0)
         ref = score([np.tile(shape, (len(s["x"]), 1)) for s in held], fold, basis, iod_px)["mouth_error_px"]
-        for name, (model, _) in models.items():
-            f = score([predict_sequence(model, norm(s)[0], delay, device) for s in held], fold, basis, iod_px)
+        preds = {name: [predict_sequence(model, norm(s)[0], delay, device) for s in held]
+                 for name, (model, _) in models.items()}
+        db = retrieval_database(models["base"][0], seqs, delay, device)
+        if db is not None:
+            preds["retrieval"] = [mouth_retrieval.retrieve(mouth_retrieval.keys(b), *db) for b in preds["base"]]
+        for name, pred in preds.items():
+            f = score(pred, fold, basis, iod_px)
             ratio = f["mouth_error_px"] / ref
             out.setdefault(name, []).append(dict(mouth_error_px=f["mouth_error_px"], ratio_to_mean_shape=ratio,
                                                  median_opening_corr=f["median_opening_corr"],
@@ -239,13 +259,14 @@ def align_recordings(data: dict, mean, std, delay: int) -> dict:
     return found
 
 
-def segment_utilities(model, data: dict, mean_shape, mean, std, delay: int, device, basis, iod_px) -> list[float]:
-    """``selection.utility`` of ``model`` on each held-out segment (``data["val"]``) alone."""
+def segment_utilities(predict, data: dict, mean_shape, basis, iod_px) -> list[float]:
+    """``selection.utility`` of a predictor (normalised features → 100-Hz coefficients) on each held-out
+    segment (``data["val"]``) alone."""
     out = []
     for s in data["val"]:
         one = dict(val=[s])
         ref = score([np.tile(mean_shape, (len(s["x"]), 1))], one, basis, iod_px)["mouth_error_px"]
-        f = score([predict_sequence(model, ((s["x"] - mean) / std).astype(np.float32), delay, device)], one, basis, iod_px)
+        f = score([predict(s["x"])], one, basis, iod_px)
         out.append(selection.utility(f["median_opening_corr"], f["mouth_error_px"] / ref))
     return out
 
@@ -267,22 +288,28 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3, align_offsets: b
     found_offsets = align_recordings(data, mean, std, delay) if align_offsets else {}
     models, notes = candidate_models(init, data, mean, std, p, delay, device, anchor)
     own = data["train"]
+    normed = lambda x: ((x - mean) / std).astype(np.float32)
+    predictors = {name: (lambda x, m=model: predict_sequence(m, normed(x), delay, device)) for name, model in models.items()}
+    db = retrieval_database(models["base"], [(normed(s["x"]), s["y"], s["ok"]) for s in own], delay, device)
+    if db is None:
+        log.warning("retrieval candidate: the training part holds too few steps of a moving mouth (%d needed): left "
+                    "out, the parametric candidates compete", mouth_retrieval.MIN_FRAMES)
+    else:
+        predictors["retrieval"] = lambda x: mouth_retrieval.retrieve(mouth_retrieval.keys(predictors["base"](x)), *db)
     mean_shape = np.concatenate([s["y"][s["ok"]] for s in own]).mean(0)
     baseline = score([np.tile(mean_shape, (len(s["x"]), 1)) for s in data["val"]], data, basis, pattrs["iod_px"])
     figures = {}
-    for name, model in models.items():
-        preds = [predict_sequence(model, ((s["x"] - mean) / std).astype(np.float32), delay, device) for s in data["val"]]
-        figures[name] = score(preds, data, basis, pattrs["iod_px"])
+    for name, predict in predictors.items():
+        figures[name] = score([predict(s["x"]) for s in data["val"]], data, basis, pattrs["iod_px"])
         figures[name]["ratio_to_mean_shape"] = figures[name]["mouth_error_px"] / baseline["mouth_error_px"]
-        log.info("candidate %-9s held-out mouth error %.3f px (%.2f %% IOD), ratio to the mean shape %.2f, opening "
+        log.info("candidate %-15s held-out mouth error %.3f px (%.2f %% IOD), ratio to the mean shape %.2f, opening "
                  "correlation %.2f", name, figures[name]["mouth_error_px"], figures[name]["mouth_error_iod_pct"],
                  figures[name]["ratio_to_mean_shape"], figures[name]["median_opening_corr"])
     segments = sorted(data["train"] + data["val"], key=lambda s: s["name"])          # the footage in time order
     plan = selection.fold_plan(len(segments), selection.FOLDS)
     per_fold = fold_figures(init, segments, plan, mean, std, delay, device, basis, pattrs["iod_px"])
     chosen, table = selection.choose({n: [f["utility"] for f in fs] for n, fs in per_fold.items()})
-    per_segment = {n: segment_utilities(m, data, mean_shape, mean, std, delay, device, basis, pattrs["iod_px"])
-                   for n, m in models.items()}
+    per_segment = {n: segment_utilities(f, data, mean_shape, basis, pattrs["iod_px"]) for n, f in predictors.items()}
     fine = selection.beats(np.subtract(per_segment["fine_tune"], per_segment["base"])) and \
         np.mean(per_segment["fine_tune"]) > np.mean(per_segment[chosen])
     for name, folds in per_fold.items():
@@ -300,10 +327,13 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3, align_offsets: b
         log.warning("the personalized model is worse than the person's mean mouth shape on the held-out part "
                     "(ratio %.2f): their tracked lips follow the audio too little to learn from this footage",
                     figures[chosen]["ratio_to_mean_shape"])
-    model = models[chosen].cpu()
+    model = models["base" if chosen == "retrieval" else chosen].cpu()
+    retrieval = {} if chosen != "retrieval" else dict(
+        config=dict(k=mouth_retrieval.K, smooth=mouth_retrieval.SMOOTH, context=mouth_retrieval.CONTEXT,
+                    step=mouth_retrieval.STEP), arrays=dict(retrieval_keys=db[0], retrieval_values=db[1]))
     metrics = dict(model="lstm", features=p.features, delay_steps=delay, base=str(base_folder), chosen=chosen,
                    candidates=figures, folds=dict(plan=[[segments[i]["name"] for i in b] for b in plan],
-                                                  per_fold=per_fold, table=table, fine_tune_segments=per_segment),
+                                                  per_fold=per_fold, table=table, held_out_segments=per_segment),
                    adaptation=notes, offsets=found_offsets, val=figures[chosen], baseline_mean_shape=baseline,
                    ratio_to_mean_shape=figures[chosen]["ratio_to_mean_shape"])
     rest = rest_shape(own, params.ingest.out)
@@ -313,8 +343,9 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3, align_offsets: b
                                     n_features=int(mean.shape[0]),
                                     n_components=int(basis["components"].shape[0]), feature_rate=100.0,
                                     feature_norm=p.feature_norm, features=p.features, params=as_dict(p),
-                                    encoder=encoder, personalized=dict(base=str(base_folder), chosen=chosen)),
-                   mean, std, basis, pattrs, rest)
+                                    encoder=encoder, personalized=dict(base=str(base_folder), chosen=chosen),
+                                    **({"retrieval": retrieval["config"]} if retrieval else {})),
+                   mean, std, basis, pattrs, rest, extra_arrays=retrieval.get("arrays"))
         metrics["speaker"] = export_speaker(tmp, params.ingest.out, params.landmarks.out, params.frontalize.out,
                                             p.bank_frames, p.identity_frames)
     curves = {"fine_tune": notes["fine_tune"].pop("history")}
