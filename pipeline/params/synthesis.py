@@ -39,7 +39,7 @@ class Synthesize(Section):
     retarget: str = field(default="auto",
         metadata={"help": "move predicted shapes onto the target's mean mouth: auto = when the model's PCA basis differs (another corpus) | always | never"})
     max_spread_gain: float = field(default=3.0,
-        metadata={"help": "re-targeted shapes: widen their spread about the mean toward the target's own (its frames' RMS mouth motion), by at most this factor (1: off; bench/strangers.py)", "min": 1.0})
+        metadata={"help": "re-targeted shapes: widen their spread toward the target's own mouth motion (RMS), by at most this factor (1: off)", "min": 1.0})
     exclude_target_from_pool: bool = field(default=False,
         metadata={"help": "true: candidates only from other videos (evaluation against the target)"})
     teeth_upper: int | None = field(default=None,
