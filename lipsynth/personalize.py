@@ -11,13 +11,14 @@
    into ``--work`` (default ``runs/personalize/NAME``), with the params of ``--params`` otherwise.
    Footage whose mouth never moves (a photo, a still video) stops here with one line.
 3. Adaptation of the base model (default: the shipped ``models/base``, GRID s1's read speech,
-   hash-checked): the base as is, the base with a read-out of its LSTM fitted to the person, a
-   read-out of the encoder states fitted to the person, and a fine-tune (early stopping, pulled
-   toward its start) are scored on the held-out part and the best is kept
-   (``stages/train/adapt.py``), so the result is never worse there than the base.
-   ``--base none`` trains from scratch instead (``--steps`` optimizer steps). The model folder
-   carries the person's candidate bank, identity and 3D face, so ``lipsynth speak --model
-   models/NAME`` animates them.
+   hash-checked), after each recording's own audio–video offset is estimated and undone
+   (``stages/train/offsets.py``): the base as is, two ridge read-outs (of its LSTM and of the encoder
+   states), their average, the person's own shapes retrieved on a Viterbi path, and a fine-tune
+   are scored fold by fold over the person's segments by opening correlation and mouth error; a
+   candidate replaces the base only when it beats it beyond noise (``stages/train/selection.py``,
+   ``stages/train/adapt.py``). ``--base none`` trains from scratch instead (``--steps`` optimizer
+   steps). The model folder carries the person's candidate bank, identity and 3D face, so
+   ``lipsynth speak --model models/NAME`` animates them.
 4. The held-out figures (mouth error against the tracked lips, ratio to the mean shape, opening
    correlation) of each candidate and the time taken, printed.
 

@@ -1,4 +1,4 @@
-"""Personalization from a base model: five candidates, scored fold by fold over the person's segments.
+"""Personalization from a base model: six candidates, scored fold by fold over the person's segments.
 
 ``lipsynth personalize`` preprocesses a person's footage and calls ``run``. From the base model (the
 shipped ``models/base`` or ``--base``), whose read-out is first re-expressed in the person's mouth
@@ -15,15 +15,17 @@ PCA (``fine_tune.initial_state``: W₀ = s·C_n·C_bᵀ·W_b), it builds
    what the pretrained encoder says about this person's mouth without the base's recurrence, which
    learned one read speaker's timing;
 4. ``average`` — the mean of the shapes of 1–3, itself one linear model (each read-out is linear);
+   ``retrieval`` — the person's own shapes along a Viterbi path (``pipeline/models/mouth_retrieval``),
+   keyed by the base's predictions (left out when the footage holds too little moving mouth);
 5. ``fine_tune`` — every weight trained from the better of 2 and 3 (by cross-validation error) for
    ``train.steps``, early stopping on the held-out part (``patience``) and an L2 pull toward the
    starting weights, λ_sp Σ ‖θ − θ₀‖² (L2-SP; ``stages/train/lstm.train``'s ``anchor``).
 
 In 2 and 3, λ = α · (training frames), α chosen by leave-one-segment-out cross-validation on the
 training part. Selection (``stages/train/selection.py``): the person's segments, in time order, are cut
-into ``selection.FOLDS`` blocks; each block is held out while 2 and 3 are refitted on the rest, and every
-linear candidate (1–4) is scored on it by its utility, opening correlation at lag 0 plus the share of
-the mean shape's mouth error removed. A candidate replaces the base only when its per-fold gain over the
+into ``selection.FOLDS`` blocks; each block is held out while 2 and 3 are refitted on the rest (and the
+retrieval database rebuilt from it), and every candidate but 5 is scored on it by its utility, opening
+correlation at lag 0 plus the share of the mean shape's mouth error removed. A candidate replaces the base only when its per-fold gain over the
 base is above noise (mean more than one standard error above 0); among those the best mean is kept.
 ``fine_tune`` (trained once: its early stopping looks at the held-out part) is kept only when it beats the
 base on the held-out segments beyond noise and the k-fold choice there too. Every candidate's per-fold
