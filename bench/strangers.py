@@ -81,8 +81,36 @@ def score(rows: list[dict], clips: list[Path], work: Path) -> None:
     ys = yardstick_module()
     for row, clip in zip(rows, clips):
         out = work / f"{clip.stem}.mp4"
-        if out.is_file():
+        if out.is_file() and "yardstick" not in row:
             row["yardstick"] = ys.compare(str(clip), str(out))
+
+
+def model_corr(clip: Path, cache: Path, model: str) -> dict | None:
+    """Where the signal goes before rendering: the model's predicted inner-lip opening (its lip points,
+    62–66) against the clip's own tracked opening (the cached target's landmarks, over the inter-ocular
+    distance), correlation at lag 0 and the best lag within ±5 frames."""
+    from pipeline.io.store import open_group
+    from pipeline.measures.lipsync_measures import best_lag
+    from pipeline.models.mouth_prediction import load_audio, predict_mouth
+    found = sorted(cache.glob(f"{clip.stem}-*/landmarks.zarr"))
+    if not found:
+        return None
+    g = open_group(str(found[-1]))
+    v = g.attrs["videos"][0]
+    sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])
+    lm, ok = np.asarray(g["landmarks"][sl], np.float64), np.asarray(g["valid"][sl])
+    truth = np.where(ok, np.linalg.norm(lm[:, 62] - lm[:, 66], axis=1) / np.linalg.norm(lm[:, 36] - lm[:, 45], axis=1),
+                     np.nan)
+    lips = predict_mouth(load_audio(str(clip)), model, v["fps"])["lip_points"]      # 18 points: 61–63, 65–67 inner
+    pred = np.linalg.norm(lips[:, 13] - lips[:, 16], axis=1)
+    n = min(len(truth), len(pred))
+    truth, pred = truth[:n], pred[:n]
+    both = np.isfinite(truth)
+    lag = best_lag(truth, pred)
+    x, y = truth[max(lag, 0):n + min(lag, 0)], pred[max(-lag, 0):n + min(-lag, 0)]
+    good = np.isfinite(x)
+    return dict(corr=float(np.corrcoef(truth[both], pred[both])[0, 1]), corr_best=float(np.corrcoef(x[good], y[good])[0, 1]),
+                lag=int(lag))
 
 
 def summary(rows: list[dict]) -> dict:
@@ -90,7 +118,9 @@ def summary(rows: list[dict]) -> dict:
     corr = [r["yardstick"]["corr"] for r in made]
     best = [r["yardstick"]["corr_best"] for r in made]
     ratio = [r["yardstick"]["mouth_err"] / r["yardstick"]["static_err"] for r in made]
-    return dict(clips=len(rows), made=len(made), corr=float(np.median(corr)) if corr else None,
+    model = [r["model_corr"]["corr"] for r in rows if r.get("model_corr")]
+    return dict(clips=len(rows), made=len(made), model_corr=float(np.median(model)) if model else None,
+                corr=float(np.median(corr)) if corr else None,
                 corr_best=float(np.median(best)) if best else None, corr_min=float(min(corr)) if corr else None,
                 err_ratio=float(np.median(ratio)) if ratio else None)
 
@@ -100,17 +130,21 @@ def fmt(x, spec=".2f"):
 
 
 def table(rows: list[dict], summ: dict) -> str:
-    lines = ["| clip | lip sync made on | err ratio | corr lag 0 / best (lag) | sharpness | target 3D fit | exit |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| clip | lip sync made on | model: predicted vs tracked opening, corr lag 0 / best | `speak`: err ratio | "
+             "`speak`: corr lag 0 / best (lag) | sharpness | target 3D fit | exit |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         y = r.get("yardstick") or {}
         fit = r.get("fit") or {}
         ratio = y["mouth_err"] / y["static_err"] if "mouth_err" in y else None
-        lines.append(f"| {r['clip']} | {fmt(r.get('made_share'), '.0%')} | {fmt(ratio)} | "
+        mc = r.get("model_corr") or {}
+        lines.append(f"| {r['clip']} | {fmt(r.get('made_share'), '.0%')} | {fmt(mc.get('corr'))} / {fmt(mc.get('corr_best'))} | "
+                     f"{fmt(ratio)} | "
                      f"{fmt(y.get('corr'))} / {fmt(y.get('corr_best'))} ({y.get('offset', '–')}) | {fmt(y.get('sharp'))} | "
                      f"{fit.get('method', '–')}, {fmt(fit.get('reprojection_iod'), '.3f')} × IOD | {r['rc']} |")
     lines.append(f"| **median** of the {summ['made']} of {summ['clips']} clips made on ≥ {MADE_AT_LEAST:.0%} | | "
-                 f"{fmt(summ['err_ratio'])} | {fmt(summ['corr'])} / {fmt(summ['corr_best'])} (min {fmt(summ['corr_min'])}) | | | |")
+                 f"{fmt(summ['model_corr'])} | {fmt(summ['err_ratio'])} | {fmt(summ['corr'])} / {fmt(summ['corr_best'])} "
+                 f"(min {fmt(summ['corr_min'])}) | | | |")
     return "\n".join(lines) + "\n"
 
 
@@ -143,6 +177,7 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=ROOT / "runs" / "strangers")
     ap.add_argument("--cache", type=Path, default=None, help="preprocessed targets (default: WORK/cache)")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "strangers.json")
+    ap.add_argument("--reuse", action="store_true", help="keep the speak runs and scores of --out's clips (re-score the model)")
     ap.add_argument("--table", type=Path, default=ROOT / "docs" / "strangers.md")
     a = ap.parse_args()
     for need in (YARDSTICK, STRANGERS):
@@ -151,11 +186,17 @@ def main() -> None:
     clips = a.clips or sorted(STRANGERS.glob("*.mp4"))
     a.work.mkdir(parents=True, exist_ok=True)
     rows = []
+    earlier = {r["clip"]: r for r in json.loads(a.out.read_text())["rows"]} if a.reuse and a.out.is_file() else {}
     for clip in clips:
+        if clip.name in earlier and (a.work / f"{clip.name[:-4]}.mp4").is_file():
+            rows.append(earlier[clip.name])
+            continue
         rows.append(run_clip(clip.resolve(), a.model, a.work, a.cache or a.work / "cache", a.params))
         print(f"{clip.name}: rc {rows[-1]['rc']}, made on {fmt(rows[-1]['made_share'], '.0%')} "
               f"({rows[-1]['seconds']} s) {rows[-1].get('message', '')}", flush=True)
     score(rows, clips, a.work)
+    for row, clip in zip(rows, clips):
+        row["model_corr"] = model_corr(clip.resolve(), a.cache or a.work / "cache", a.model)
     summ = summary(rows)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True,

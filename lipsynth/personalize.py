@@ -202,7 +202,9 @@ def run(args) -> dict:
     val, mean = metrics["val"], metrics["baseline_mean_shape"]
     summary = dict(model=str(args.out), base=args.base, steps=args.steps, seconds=round(time.perf_counter() - t0, 1),
                    stage_seconds={k: round(v, 1) for k, v in times.items()}, chosen=metrics.get("chosen", "scratch"),
-                   candidates=metrics.get("candidates"),
+                   candidates=metrics.get("candidates"), folds=(metrics.get("folds") or {}).get("table"),
+                   offsets={k: {kk: v[kk] for kk in ("offset_ms", "best_lag_ms", "reliable", "reason")}
+                            for k, v in (metrics.get("offsets") or {}).items()},
                    held_out_clips=val.get("n_clips"), mouth_error_iod_pct=val["mouth_error_iod_pct"],
                    ratio_to_mean_shape=metrics["ratio_to_mean_shape"], opening_corr=val.get("median_opening_corr"),
                    mean_shape_error_iod_pct=mean["mouth_error_iod_pct"], tracker_floor_corr=floor)
@@ -210,7 +212,7 @@ def run(args) -> dict:
     print(f"personalized {args.out} in {summary['seconds'] / 60:.1f} min "
           f"({', '.join(f'{k} {v:.0f} s' for k, v in times.items())})")
     for cand, f in (metrics.get("candidates") or {}).items():
-        print(f"  candidate {cand:<9} held-out ratio to the mean shape {f['ratio_to_mean_shape']:.2f}, opening "
+        print(f"  candidate {cand:<15} held-out ratio to the mean shape {f['ratio_to_mean_shape']:.2f}, opening "
               f"correlation {f['median_opening_corr']:.2f}{'   ← kept' if cand == metrics['chosen'] else ''}")
     print(f"held-out footage ({val.get('n_clips')} clips): mouth error {val['mouth_error_iod_pct']:.2f} % IOD "
           f"(mean shape {mean['mouth_error_iod_pct']:.2f} %, ratio {metrics['ratio_to_mean_shape']:.2f}), "

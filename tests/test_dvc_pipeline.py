@@ -380,8 +380,9 @@ def test_fine_tuning_from_a_model_folder_trains_only_what_it_is_told(project, tm
 @pytest.mark.slow
 def test_personalize_one_video_split_in_time_from_scratch_and_from_the_shipped_base(project, tmp_path):
     """lipsynth personalize on one 10-s video: cut into segments, the end held out (one line says so),
-    preprocessed; from scratch (--base none) and from the shipped base by default: four candidates
-    scored on the held-out part, the best kept; the figures printed, a speak-ready folder."""
+    preprocessed; from scratch (--base none) and from the shipped base by default: the recording's
+    offset estimated, six candidates scored fold by fold, the base replaced only by one that beats it
+    beyond noise; the figures printed, a speak-ready folder."""
     video = project / "data" / "synthetic_speaker" / "speaker_01.mp4"
     common = [sys.executable, "-m", "lipsynth.cli", "personalize", str(video), "--segment-seconds", "2.5"]
     r = subprocess.run(common + ["--out", str(tmp_path / "scratch"), "--steps", "30", "--work", str(tmp_path / "w1"),
@@ -401,10 +402,19 @@ def test_personalize_one_video_split_in_time_from_scratch_and_from_the_shipped_b
     cfg = json.loads((tmp_path / "tuned" / "config.json").read_text())
     assert tuned["base"] == str(project / "models" / "base") and cfg["personalized"]["base"] == tuned["base"]
     errors = {c: f["mouth_error_px"] for c, f in tuned["candidates"].items()}
-    assert set(errors) == {"base", "readout", "encoder_readout", "fine_tune"} and tuned["chosen"] == min(errors, key=errors.get), tuned
-    assert tuned["ratio_to_mean_shape"] == tuned["candidates"][tuned["chosen"]]["ratio_to_mean_shape"]
+    assert set(errors) == {"base", "readout", "encoder_readout", "average", "retrieval", "fine_tune"}, tuned
+    folds = tuned["folds"]
+    assert set(folds) == set(errors) - {"fine_tune"} and not folds["base"]["beats_base"]
+    chosen = tuned["chosen"]
+    assert chosen in ("base", "fine_tune") or folds[chosen]["beats_base"], tuned        # never a change within noise
+    assert chosen == "fine_tune" or chosen == max([c for c in folds if folds[c]["beats_base"]] or ["base"],
+                                                  key=lambda c: folds[c]["mean"]), tuned
+    assert tuned["ratio_to_mean_shape"] == tuned["candidates"][chosen]["ratio_to_mean_shape"]
+    assert list(tuned["offsets"]) == ["speaker_01"] and "offset_ms" in tuned["offsets"]["speaker_01"]
     for c in errors:
         assert f"candidate {c}" in r.stdout, r.stdout
+        assert f"candidate {c}" in r.stderr, r.stderr[-3000:]                          # the per-fold lines
+    assert "audio–video offset" in r.stderr, r.stderr[-3000:]
     assert (tmp_path / "tuned" / "bank.zarr").is_dir() and cfg["features"] == "whisper"
 
 
