@@ -325,8 +325,10 @@ def run_stage(params: Params) -> dict:
     ms = run(params, synth_path, str(Path(params.composite.out_dir) / "result.mp4"),
              params.frontalize.out, video["path"], params.synthesize.audio)
     ms["wall_fps"] = open_group(synth_path).attrs["n_frames"] / (time.perf_counter() - t0)
-    check = ms.pop("self_check", None)
-    write_timing("composite", dict(ms, **{f"self_check_{k}": v for k, v in (check or {}).items()}))
+    check = ms.pop("self_check", None) or {}
+    counts = {f"self_check_{k}_{kk}": vv for k, v in check.items() if isinstance(v, dict) for kk, vv in v.items()}
+    write_timing("composite", dict(ms, **{f"self_check_{k}": v for k, v in check.items() if not isinstance(v, dict)},
+                                   **counts))
     return ms
 
 
