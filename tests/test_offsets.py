@@ -32,6 +32,8 @@ def test_the_offset_is_counted_from_the_lag_of_footage_in_sync():
     est = offsets.estimate(*recording(offsets.SYNCED_LAG + 4))
     assert est["best"] == offsets.SYNCED_LAG + 4 and est["lag"] == 4
     assert offsets.estimate(*recording(offsets.SYNCED_LAG))["lag"] == 0
+    near = offsets.estimate(*recording(offsets.SYNCED_LAG + offsets.LAG_STEP))     # one step from sync: left alone
+    assert near["best"] == offsets.SYNCED_LAG + offsets.LAG_STEP and near["lag"] == 0 and near["reliable"]
 
 
 def test_shift_aligns_the_targets_and_marks_the_rows_it_cannot_fill():

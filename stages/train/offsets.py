@@ -14,7 +14,8 @@ the right one lets it fit well.
 A mouth moves before its sound (it opens, then the voice starts), so footage in sync has a best lag
 below 0: ``SYNCED_LAG`` is that lag, measured on GRID speaker 4 (known sync; ``lipsynth personalize
 ../shared/data/grid_s4/*.mp4``: its 24 training and held-out clips pooled, −60 ms). The recording's
-offset is the best lag minus ``SYNCED_LAG``; only that is undone.
+offset is the best lag minus ``SYNCED_LAG``; only that is undone, and only when it is more than one
+tried step (20 ms) from sync.
 
 Pure functions (no I/O): ``adapt`` calls ``estimate`` per source video and ``shift`` per segment.
 """
@@ -85,7 +86,8 @@ def estimate(xs: list, ys: list, oks: list, max_lag: int = MAX_LAG_STEPS, step: 
     if abs(best) >= max_lag - step // 2:
         return dict(lag=0, best=best, errors=errors, reliable=False,
                     reason=f"the least error is at the edge of ±{max_lag} steps: no offset within reach")
-    return dict(lag=int(best - synced), best=int(best), errors=errors, reliable=True, reason="")
+    offset = int(best - synced)
+    return dict(lag=offset if abs(offset) > step else 0, best=int(best), errors=errors, reliable=True, reason="")
 
 
 def recording_of(segment_name: str) -> str:
