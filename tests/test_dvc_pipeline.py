@@ -404,11 +404,10 @@ def test_personalize_one_video_split_in_time_from_scratch_and_from_the_shipped_b
     errors = {c: f["mouth_error_px"] for c, f in tuned["candidates"].items()}
     assert set(errors) == {"base", "readout", "encoder_readout", "average", "retrieval", "fine_tune"}, tuned
     folds = tuned["folds"]
-    assert set(folds) == set(errors) - {"fine_tune"} and not folds["base"]["beats_base"]
+    assert set(folds) == set(errors) and not folds["base"]["beats_base"]
     chosen = tuned["chosen"]
-    assert chosen in ("base", "fine_tune") or folds[chosen]["beats_base"], tuned        # never a change within noise
-    assert chosen == "fine_tune" or chosen == max([c for c in folds if folds[c]["beats_base"]] or ["base"],
-                                                  key=lambda c: folds[c]["mean"]), tuned
+    assert chosen == "base" or folds[chosen]["beats_base"], tuned                       # never a change within noise
+    assert chosen == max([c for c in folds if folds[c]["beats_base"]] or ["base"], key=lambda c: folds[c]["mean"]), tuned
     assert tuned["ratio_to_mean_shape"] == tuned["candidates"][chosen]["ratio_to_mean_shape"]
     assert list(tuned["offsets"]) == ["speaker_01"] and "offset_ms" in tuned["offsets"]["speaker_01"]
     for c in errors:

@@ -23,12 +23,12 @@ PCA (``fine_tune.initial_state``: W₀ = s·C_n·C_bᵀ·W_b), it builds
 
 In 2 and 3, λ = α · (training frames), α chosen by leave-one-segment-out cross-validation on the
 training part. Selection (``stages/train/selection.py``): the person's segments, in time order, are cut
-into ``selection.FOLDS`` blocks; each block is held out while 2 and 3 are refitted on the rest (and the
-retrieval database rebuilt from it), and every candidate but 5 is scored on it by its utility, opening
-correlation at lag 0 plus the share of the mean shape's mouth error removed. A candidate replaces the base only when its per-fold gain over the
-base is above noise (mean more than one standard error above 0); among those the best mean is kept.
-``fine_tune`` (trained once: its early stopping looks at the held-out part) is kept only when it beats the
-base on the held-out segments beyond noise and the k-fold choice there too. Every candidate's per-fold
+into ``selection.FOLDS`` blocks; each block is held out while 2 and 3 are refitted on the rest (the
+retrieval database rebuilt from it, and 5 fine-tuned on it for as many steps as the early-stopped run
+kept — no early stopping inside a fold), and every candidate is scored on it by its utility, opening
+correlation at lag 0 plus the share of the mean shape's mouth error removed. A candidate replaces the
+base only when its per-fold gain over the base is above noise (mean more than one standard error above
+0); among those the best mean is kept. Every candidate's per-fold
 figures are logged and written to the metrics (``folds``), with each candidate's held-out figures (the
 final fits, trained on the training part). When even the kept candidate is worse than the person's mean
 mouth shape on the held-out part, one warning line says so (the model is still written: ``speak`` needs
@@ -175,23 +175,33 @@ def retrieval_database(base, seqs: list, delay: int, device) -> tuple[np.ndarray
     return np.concatenate(ks).astype(np.float32), values.astype(np.float32)
 
 
-def fold_figures(init: dict, segments: list, plan: list, mean, std, delay: int, device, basis, iod_px) -> dict:
-    """Per-fold figures of the linear candidates: for each block of ``plan`` held out, the read-outs fitted on
-    the other segments and every candidate scored on the block. Returns {name: [dict(mouth_error_px,
-    ratio_to_mean_shape, median_opening_corr, utility) per fold]}."""
+def fold_figures(init: dict, segments: list, plan: list, mean, std, delay: int, device, basis, iod_px,
+                 tune: dict | None = None) -> dict:
+    """Per-fold figures of the candidates: for each block of ``plan`` held out, the read-outs fitted on the
+    other segments (and, with ``tune`` = dict(p, steps, anchor), the fine-tune run for ``steps`` from the
+    better read-out on them, no early stopping) and every candidate scored on the block. Returns
+    {name: [dict(mouth_error_px, ratio_to_mean_shape, median_opening_corr, utility) per fold]}."""
     norm = lambda s: (((s["x"] - mean) / std).astype(np.float32), s["y"].astype(np.float64), s["ok"])
     out: dict[str, list] = {}
     for block in plan:
         held = [segments[i] for i in block]
         rest = [s for i, s in enumerate(segments) if i not in set(block.tolist())]
         seqs = [norm(s) for s in rest]
-        models = linear_models(init, seqs[0][0].shape[1], seqs[0][1].shape[1], linear_fits(init, seqs, delay, device),
-                               device)
+        fits = linear_fits(init, seqs, delay, device)
+        models = linear_models(init, seqs[0][0].shape[1], seqs[0][1].shape[1], fits, device)
         fold = dict(val=held)
         shape = np.concatenate([s["y"][s["ok"]] for s in rest]).mean(0)
         ref = score([np.tile(shape, (len(s["x"]), 1)) for s in held], fold, basis, iod_px)["mouth_error_px"]
         preds = {name: [predict_sequence(model, norm(s)[0], delay, device) for s in held]
                  for name, (model, _) in models.items()}
+        if tune is not None:
+            start = better_readout(fits)
+            f32 = [(x, y.astype(np.float32), ok) for x, y, ok in seqs]
+            tuned, _, _ = lstm.train(f32, f32[-1:], replace(tune["p"], fine_tune="all"), delay, device, seed=tune["p"].seed,
+                                     desc="fine-tune (fold)", budget=Budget(tune["steps"], tune["steps"], None, 0.0),
+                                     init=dict(state=models[start][1], hidden=init["hidden"], layers=init["layers"],
+                                               anchor=tune["anchor"], skip=start == "encoder_readout"))
+            preds["fine_tune"] = [predict_sequence(tuned, norm(s)[0], delay, device) for s in held]
         db = retrieval_database(models["base"][0], seqs, delay, device)
         if db is not None:
             preds["retrieval"] = [mouth_retrieval.retrieve(mouth_retrieval.keys(b), *db) for b in preds["base"]]
@@ -202,6 +212,12 @@ def fold_figures(init: dict, segments: list, plan: list, mean, std, delay: int, 
                                                  median_opening_corr=f["median_opening_corr"],
                                                  utility=selection.utility(f["median_opening_corr"], ratio)))
     return out
+
+
+def better_readout(fits: dict) -> str:
+    """The read-out a fine-tune starts from: the lower leave-one-segment-out error (``readout`` when unknown)."""
+    cv_h, cv_z = fits["readout"][3], fits["encoder_readout"][3]
+    return "encoder_readout" if cv_z and cv_h and min(cv_z.values()) < min(cv_h.values()) else "readout"
 
 
 def candidate_models(init: dict, data: dict, mean, std, p, delay: int, device, anchor: float):
@@ -216,7 +232,7 @@ def candidate_models(init: dict, data: dict, mean, std, p, delay: int, device, a
     for name, alpha, cv in (("read-out", alpha_h, cv_h), ("encoder read-out", alpha_z, cv_z)):
         log.info("%s candidate: ridge α = %g per frame (leave-one-segment-out error %s)", name, alpha,
                  ", ".join(f"{a:g}: {e:.3f}" for a, e in cv.items()) or "— one training segment")
-    start = "encoder_readout" if cv_z and cv_h and min(cv_z.values()) < min(cv_h.values()) else "readout"
+    start = better_readout(fits)
     f32 = lambda s: (((s["x"] - mean) / std).astype(np.float32), s["y"].astype(np.float32), s["ok"])
     budget = Budget(p.steps, p.val_every, p.patience or 5, p.min_delta)
     tuned, history, kept = lstm.train([f32(s) for s in data["train"]], [f32(s) for s in data["val"]],
@@ -309,20 +325,15 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3, align_offsets: b
                  figures[name]["ratio_to_mean_shape"], figures[name]["median_opening_corr"])
     segments = sorted(data["train"] + data["val"], key=lambda s: s["name"])          # the footage in time order
     plan = selection.fold_plan(len(segments), selection.FOLDS)
-    per_fold = fold_figures(init, segments, plan, mean, std, delay, device, basis, pattrs["iod_px"])
+    tune = dict(p=p, steps=max(int(notes["fine_tune"]["step_kept"]), 1), anchor=anchor)
+    per_fold = fold_figures(init, segments, plan, mean, std, delay, device, basis, pattrs["iod_px"], tune)
     chosen, table = selection.choose({n: [f["utility"] for f in fs] for n, fs in per_fold.items()})
     per_segment = {n: segment_utilities(f, data, mean_shape, basis, pattrs["iod_px"]) for n, f in predictors.items()}
-    fine = selection.beats(np.subtract(per_segment["fine_tune"], per_segment["base"])) and \
-        np.mean(per_segment["fine_tune"]) > np.mean(per_segment[chosen])
     for name, folds in per_fold.items():
         t = table[name]
         log.info("candidate %-15s folds (ratio / corr): %s → utility %.3f, gain over the base %+.3f ± %.3f%s", name,
                  " · ".join(f"{f['ratio_to_mean_shape']:.2f} / {f['median_opening_corr']:.2f}" for f in folds),
                  t["mean"], t["gain"], t["gain_se"], " (beats the base)" if t["beats_base"] else "")
-    log.info("candidate fine_tune       held-out segments (utility): %s against the base's %s%s",
-             " · ".join(f"{u:.2f}" for u in per_segment["fine_tune"]), " · ".join(f"{u:.2f}" for u in per_segment["base"]),
-             " (beats the base and the k-fold choice)" if fine else "")
-    chosen = "fine_tune" if fine else chosen
     log.info("kept: %s (%d folds of %d segments; a candidate replaces the base only when its gain is above %g "
              "standard errors)", chosen, len(plan), len(segments), selection.Z_NOISE)
     if figures[chosen]["ratio_to_mean_shape"] >= 1.0:
