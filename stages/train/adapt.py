@@ -184,8 +184,8 @@ def fold_figures(init: dict, segments: list, plan: list, mean, std, delay: int, 
     norm = lambda s: (((s["x"] - mean) / std).astype(np.float32), s["y"].astype(np.float64), s["ok"])
     out: dict[str, list] = {}
     for block in plan:
-        held = [segments[i] for i in block]
-        rest = [s for i, s in enumerate(segments) if i not in set(block.tolist())]
+        held, out_of_fold = [segments[i] for i in block], set(block.tolist())
+        rest = [s for i, s in enumerate(segments) if i not in out_of_fold]
         seqs = [norm(s) for s in rest]
         fits = linear_fits(init, seqs, delay, device)
         models = linear_models(init, seqs[0][0].shape[1], seqs[0][1].shape[1], fits, device)
@@ -250,7 +250,7 @@ def align_recordings(data: dict, mean, std, delay: int) -> dict:
     """Estimate each source recording's audio–video offset (``stages/train/offsets``) from all its segments
     (clips of one segment each share one offset, as a corpus recorded in one set-up does) and align its targets
     in place (100-Hz ``y``/``ok`` shifted, frame times moved for scoring). Logs one line per recording;
-    returns {recording: dict(lag_ms, reliable, reason, cv_error)}."""
+    returns {recording: dict(offset_ms, best_lag_ms, reliable, reason, cv_error)}."""
     by_recording: dict[str, list] = {}
     for s in data["train"] + data["val"]:
         by_recording.setdefault(offsets.recording_of(s["name"]), []).append(s)
@@ -277,19 +277,7 @@ def align_recordings(data: dict, mean, std, delay: int) -> dict:
     return found
 
 
-def segment_utilities(predict, data: dict, mean_shape, basis, iod_px) -> list[float]:
-    """``selection.utility`` of a predictor (normalised features → 100-Hz coefficients) on each held-out
-    segment (``data["val"]``) alone."""
-    out = []
-    for s in data["val"]:
-        one = dict(val=[s])
-        ref = score([np.tile(mean_shape, (len(s["x"]), 1))], one, basis, iod_px)["mouth_error_px"]
-        f = score([predict(s["x"])], one, basis, iod_px)
-        out.append(selection.utility(f["median_opening_corr"], f["mouth_error_px"] / ref))
-    return out
-
-
-def run(params: Params, base_folder: str, anchor: float = 1e-3, align_offsets: bool = True) -> dict:
+def run(params: Params, base_folder: str, anchor: float = 1e-3) -> dict:
     """Personalize from ``base_folder`` on the stores of ``params`` (ingest, pca, whisper/phonetic);
     write the kept model (with the person's speaker) to ``train.out`` and the metrics to
     ``train.metrics``. Returns the metrics."""
@@ -303,7 +291,7 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3, align_offsets: b
     init = fine_tune.initial_state(base_folder, p.features, encoder, basis, pattrs["iod_px"], device)
     mean, std = init["feature_mean"], init["feature_std"]
     delay = int(init["base_config"]["delay"])
-    found_offsets = align_recordings(data, mean, std, delay) if align_offsets else {}
+    found_offsets = align_recordings(data, mean, std, delay)
     models, notes = candidate_models(init, data, mean, std, p, delay, device, anchor)
     own = data["train"]
     normed = lambda x: ((x - mean) / std).astype(np.float32)
@@ -328,7 +316,6 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3, align_offsets: b
     tune = dict(p=p, steps=max(int(notes["fine_tune"]["step_kept"]), 1), anchor=anchor)
     per_fold = fold_figures(init, segments, plan, mean, std, delay, device, basis, pattrs["iod_px"], tune)
     chosen, table = selection.choose({n: [f["utility"] for f in fs] for n, fs in per_fold.items()})
-    per_segment = {n: segment_utilities(f, data, mean_shape, basis, pattrs["iod_px"]) for n, f in predictors.items()}
     for name, folds in per_fold.items():
         t = table[name]
         log.info("candidate %-15s folds (ratio / corr): %s → utility %.3f, gain over the base %+.3f ± %.3f%s", name,
@@ -346,7 +333,7 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3, align_offsets: b
                     step=mouth_retrieval.STEP), arrays=dict(retrieval_keys=db[0], retrieval_values=db[1]))
     metrics = dict(model="lstm", features=p.features, delay_steps=delay, base=str(base_folder), chosen=chosen,
                    candidates=figures, folds=dict(plan=[[segments[i]["name"] for i in b] for b in plan],
-                                                  per_fold=per_fold, table=table, held_out_segments=per_segment),
+                                                  per_fold=per_fold, table=table),
                    adaptation=notes, offsets=found_offsets, val=figures[chosen], baseline_mean_shape=baseline,
                    ratio_to_mean_shape=figures[chosen]["ratio_to_mean_shape"])
     rest = rest_shape(own, params.ingest.out)
