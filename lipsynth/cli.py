@@ -28,6 +28,8 @@ COMMANDS = {
     "dvc-deps": ("lipsynth.dvc_deps", "check (or --write) the code deps of dvc.yaml's stages, derived from their imports"),
     "params-doc": ("lipsynth.params_doc", "print, --write or --check docs/parameters_reference.md (rendered from pipeline/params/)"),
     "speak": ("lipsynth.speak", "audio + any video of the speaker → lip-synced MP4 (preprocesses the target)"),
+    "prepare": ("lipsynth.prepare", "preprocess a target video once (cached) so live and speak start at once"),
+    "live": ("lipsynth.live", "audio stream in (stdin/pipe/paced file) → lip-synced video stream out (MPEG-TS, HLS)"),
     "render-mesh": ("lipsynth.render_mesh", "audio → the model's speaker as an animated textured 3D head (front + 3/4 view) → MP4, OBJ + point cache"),
     "cut": ("lipsynth.cut", "one video → consecutive segment files (data.split: time holds out its end)"),
     "personalize": ("lipsynth.personalize", "a new person's footage (~1 min) → a model folder for speak (fine-tunes a base model)"),

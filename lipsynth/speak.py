@@ -274,6 +274,48 @@ def synthesize_and_composite(prep: Prepared, audio: str, target: str, out: str) 
     return ms
 
 
+def prepare_target(target: str, params: Params, model: str, cache: Path | None = None,
+                   cluster: SharedCluster | None = None, prepared_only: bool = False) -> tuple[Params, dict, dict, dict]:
+    """Preprocess ``target`` (cached), decide whose mouths to use and open its stores: everything of ``speak`` that
+    depends on the target and the model, not on the audio. Returns (the run's params, stores, the target's index
+    entry, report). ``prepared_only``: refuse (``NotPreparedError``) instead of preprocessing (``lipsynth live``)."""
+    cache = cache or default_cache()
+    p = landmarked_target(Path(target), params, cache, cluster, prepared_only)
+    speaker, report = choose_speaker(p, model, target, cluster)
+    if speaker is not None and speaker["bank"] is not None:     # frontalize as the model's bank was: same window
+        p = with_texture_window(p, open_group(speaker["bank"]).attrs["texture_window"])
+    p = preprocess_target(Path(target), p, cache, shape3d=None if speaker is None else speaker["shape3d"],
+                          shared=cluster, prepared_only=prepared_only)
+    report["fit"] = fit_report(p, target)
+    stores = synthesize.open_stores(p, pca=False)
+    window = stores["frontalize"].attrs["texture_window"]
+    if speaker is not None and speaker["bank"] is not None:
+        bank = open_group(speaker["bank"])
+        if same_window(bank.attrs["texture_window"], window):
+            stores["bank"] = bank
+        else:
+            log.warning("the model's candidate bank has another texture window (%s) than these params (%s): "
+                        "mouths from the target only", bank.attrs["texture_window"], window)
+    # the model's PCA frame is the target's when both share the corpus 3D model and the bank
+    p.synthesize.retarget = "never" if "bank" in stores else "always"
+    report["path"] = "same speaker: corpus 3D model + candidate bank" if "bank" in stores else \
+        "another person: own 3D model, target's mouths, re-targeted shapes"
+    entry = dict(stores["frontalize"].attrs["videos"][0], path=str(target))     # messages name the user's file
+    if "bank" not in stores:
+        fr, lmg = stores["frontalize"], stores["landmarks"]
+        own = synthesize.usable(fr, lmg, entry)
+        shapes = np.asarray(fr["frontal_landmarks"][...], np.float64)[own][:, LIP_POINTS]
+        iod_px = IOD_MM / window["mm_per_px"]
+        n_shapes = distinct_shapes(shapes, 0.02 * iod_px)
+        report["distinct_mouth_shapes"] = n_shapes
+        if n_shapes < p.speak.min_mouth_shapes:
+            log.warning("%s: the target covers only %d distinct mouth shapes (%d usable frames; "
+                        "speak.min_mouth_shapes=%d): mouths will repeat and miss shapes — a longer target video "
+                        "of this person helps", target, n_shapes, len(own), p.speak.min_mouth_shapes)
+    log.info("speak: %s", report["path"])
+    return p, stores, entry, report
+
+
 def prepare(audio: str, target: str, params: Params, model: str | None = None, retime: bool = True,
             cache: Path | None = None, diagnostic: bool = False, emotion=None) -> Prepared:
     """Check the inputs, preprocess ``target`` (cached), decide whose mouths to use and predict the mouth
@@ -287,7 +329,6 @@ def prepare(audio: str, target: str, params: Params, model: str | None = None, r
     check_model_folder(model)                  # and a bad model folder (any family)
     check_emotion(model, emotion)              # and an emotion the model cannot take
     domain = audio_domain_check(samples, model, params, audio)
-    cache = cache or default_cache()
     # the mouth shapes depend on the audio, the model and the target's frame rate alone: predicted in a
     # thread of this process while the workers preprocess the target
     predicting = ThreadPoolExecutor(1, thread_name_prefix="predict_mouth")
@@ -295,43 +336,11 @@ def prepare(audio: str, target: str, params: Params, model: str | None = None, r
                               emotion=emotion)
     try:
         with SharedCluster(params.cluster, warm_up=warm_up_worker) as cluster:   # one cluster for all preprocessing
-            p = landmarked_target(Path(target), params, cache, cluster)
-            speaker, report = choose_speaker(p, model, target, cluster)
-            report["audio_domain"] = domain
-            if speaker is not None and speaker["bank"] is not None:     # frontalize as the model's bank was: same window
-                p = with_texture_window(p, open_group(speaker["bank"]).attrs["texture_window"])
-            p = preprocess_target(Path(target), p, cache, shape3d=None if speaker is None else speaker["shape3d"],
-                                  shared=cluster)
-        report["fit"] = fit_report(p, target)
+            p, stores, entry, report = prepare_target(target, params, model, cache, cluster)
+        report["audio_domain"] = domain
         p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, model
         p.synthesize.emotion = emotion
         p.composite.diagnostic = diagnostic
-        stores = synthesize.open_stores(p, pca=False)
-        window = stores["frontalize"].attrs["texture_window"]
-        if speaker is not None and speaker["bank"] is not None:
-            bank = open_group(speaker["bank"])
-            if same_window(bank.attrs["texture_window"], window):
-                stores["bank"] = bank
-            else:
-                log.warning("the model's candidate bank has another texture window (%s) than these params (%s): "
-                            "mouths from the target only", bank.attrs["texture_window"], window)
-        # the model's PCA frame is the target's when both share the corpus 3D model and the bank
-        p.synthesize.retarget = "never" if "bank" in stores else "always"
-        report["path"] = "same speaker: corpus 3D model + candidate bank" if "bank" in stores else \
-            "another person: own 3D model, target's mouths, re-targeted shapes"
-        entry = dict(stores["frontalize"].attrs["videos"][0], path=str(target))     # messages name the user's file
-        if "bank" not in stores:
-            fr, lmg = stores["frontalize"], stores["landmarks"]
-            own = synthesize.usable(fr, lmg, entry)
-            shapes = np.asarray(fr["frontal_landmarks"][...], np.float64)[own][:, LIP_POINTS]
-            iod_px = IOD_MM / window["mm_per_px"]
-            n_shapes = distinct_shapes(shapes, 0.02 * iod_px)
-            report["distinct_mouth_shapes"] = n_shapes
-            if n_shapes < p.speak.min_mouth_shapes:
-                log.warning("%s: the target covers only %d distinct mouth shapes (%d usable frames; "
-                            "speak.min_mouth_shapes=%d): mouths will repeat and miss shapes — a longer target video "
-                            "of this person helps", target, n_shapes, len(own), p.speak.min_mouth_shapes)
-        log.info("speak: %s", report["path"])
         return Prepared(p, stores, entry, mouth.result() if entry["fps"] == fps else None, report)
     finally:
         predicting.shutdown(wait=False, cancel_futures=True)

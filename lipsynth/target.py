@@ -77,8 +77,16 @@ def frontalize_name(params: Params, shape3d: np.ndarray | None) -> str:
     return f"frontalize-{h.hexdigest()[:12]}.zarr"
 
 
+class NotPreparedError(LipsynthError):
+    """A target that ``lipsynth live`` needs preprocessed is not in the cache."""
+
+    def __init__(self, video: Path, cache: Path):
+        super().__init__(f"{video}: target not prepared (nothing for it in {cache} with these params); prepare it "
+                         f"once with: lipsynth prepare {video} --model MODEL" + (f" --cache {cache}" if cache != default_cache() else ""))
+
+
 def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndarray | None = None,
-                      shared: SharedCluster | None = None) -> Params:
+                      shared: SharedCluster | None = None, prepared_only: bool = False) -> Params:
     """Params whose ingest/landmarks/frontalize outputs hold ``video`` alone (computed once, then cached).
 
     Returns a copy of ``params`` with ``data.videos`` = [video] and each preprocessing stage's
@@ -90,12 +98,14 @@ def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndar
     its own frontalize store in the cache folder.
 
     ``shared``: run the stages on this cluster (one for a whole ``speak``) instead of a cluster of
-    their own.
+    their own. ``prepared_only``: raise ``NotPreparedError`` rather than run a stage.
     """
-    p = landmarked_target(video, params, cache, shared)
+    p = landmarked_target(video, params, cache, shared, prepared_only)
     p.frontalize.out = str(Path(p.frontalize.out).with_name(frontalize_name(p, shape3d)))
     if Path(p.frontalize.out).is_dir():
         return p
+    if prepared_only:
+        raise NotPreparedError(video, cache)
     from stages.frontalize import frontalize
     log.info("target %s: frontalizing with %s", video, "the model's 3D face" if shape3d is not None else
              "its own 3D face model")
@@ -106,7 +116,8 @@ def preprocess_target(video: Path, params: Params, cache: Path, shape3d: np.ndar
     return p
 
 
-def landmarked_target(video: Path, params: Params, cache: Path, shared: SharedCluster | None = None) -> Params:
+def landmarked_target(video: Path, params: Params, cache: Path, shared: SharedCluster | None = None,
+                      prepared_only: bool = False) -> Params:
     """Like ``preprocess_target`` but only ingest and landmarks are guaranteed to exist."""
     from stages.ingest import ingest
     from stages.landmarks import landmarks
@@ -122,6 +133,8 @@ def landmarked_target(video: Path, params: Params, cache: Path, shared: SharedCl
     if (folder / "landmarks.zarr").is_dir():
         log.info("target %s: preprocessed stores found in %s", video, folder)
         return p
+    if prepared_only:
+        raise NotPreparedError(video, cache)
     log.info("target %s: preprocessing into %s (ingest → landmarks)", video, folder)
     run = copy.deepcopy(p)
     with (shared.client() if shared else client_for(p.cluster)) as client:      # one cluster for both stages

@@ -318,7 +318,7 @@ def test_median_at_half_size_is_the_full_size_median_upsampled(astronaut_mouth):
     """``synthesize.median_max_size``: candidates area-averaged to half size give a median that, upsampled,
     matches the full-size median's low band (its shape and shading), at a quarter of the values sorted."""
     from pipeline.io.store import i420_to_rgb, resize_i420, rgb_to_i420
-    from stages.synthesize.synthesize import median_pool
+    from stages.synthesize.texture_pool import median_pool
     base, lip = astronaut_mouth
     big = cv2.resize(base, (256, 256), interpolation=cv2.INTER_CUBIC)
     rng = np.random.default_rng(2)

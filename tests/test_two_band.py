@@ -174,7 +174,7 @@ def test_a_cross_fade_keeps_the_detail_energy_of_its_sources():
 
 
 def test_auto_takes_two_bands_for_large_textures_only():
-    from stages.synthesize.synthesize import TWO_BAND_FROM, detail_method
+    from stages.synthesize.texture_pool import TWO_BAND_FROM, detail_method
     assert detail_method("auto", 128) == "median"                  # GRID s1, the synthetic speaker
     assert detail_method("auto", 192) == "two_band"                # GRID s4 720×576
     assert detail_method("auto", TWO_BAND_FROM) == "two_band" and detail_method("auto", TWO_BAND_FROM - 16) == "median"
@@ -183,7 +183,7 @@ def test_auto_takes_two_bands_for_large_textures_only():
 
 def test_the_two_band_median_runs_only_as_fine_as_its_low_band_shows():
     from pipeline.params import Synthesize
-    from stages.synthesize.synthesize import median_size
+    from stages.synthesize.texture_pool import median_size
     p = Synthesize()                                               # detail_band_px 2, median_max_size 256
     assert median_size(192, "median", p) == 192 and median_size(512, "median", p) == 256
     assert median_size(192, "two_band", p) == 128 and median_size(512, "two_band", p) == 128

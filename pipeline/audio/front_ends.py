@@ -75,14 +75,23 @@ def frame_features(samples: np.ndarray, front_end: str, encoder: dict | None = N
     return combine(front_end, mfcc, phones, states)
 
 
+def normalised_columns(front_end: str, width: int) -> np.ndarray:
+    """(width,) bool: the columns ``train.feature_norm: utterance`` normalises (MFCC and encoder states;
+    phone indicators stay 0/1)."""
+    cols = np.zeros(width, bool)
+    if uses_mfcc(front_end):
+        cols[:MFCC_DIM] = True
+    if uses_whisper(front_end):
+        cols[width - WHISPER_DIM:] = True
+    return cols
+
+
 def utterance_norm(x: np.ndarray, front_end: str) -> np.ndarray:
     """Per-utterance CMVN of the MFCC columns and of the encoder states (``train.feature_norm: utterance``);
     indicators stay 0/1."""
     x = np.array(x, np.float32)
-    if uses_mfcc(front_end):
-        x[:, :MFCC_DIM] = cmvn(x[:, :MFCC_DIM])
-    if uses_whisper(front_end):
-        x[:, -WHISPER_DIM:] = cmvn(x[:, -WHISPER_DIM:])
+    cols = normalised_columns(front_end, x.shape[1])
+    x[:, cols] = cmvn(x[:, cols])
     return x
 
 

@@ -96,13 +96,30 @@ def log_mel(samples: np.ndarray, n_frames: int) -> np.ndarray:
     """Whisper's normalised log-mel spectrogram of ``samples`` zero-padded/cut to ``n_frames`` × 10 ms.
 
     Returns (80, n_frames) float32, values in about [-1, 1.5]."""
+    logs = log10_mel(samples, n_frames)
+    return whisper_scale(logs, float(logs.max()))
+
+
+def log10_mel(samples: np.ndarray, n_frames: int) -> np.ndarray:
+    """(80, n_frames) float32 log10 mel power of ``samples`` zero-padded/cut to ``n_frames`` × 10 ms, floored
+    at 1e-10 (before Whisper's clamp and scaling)."""
     import librosa
     x = np.zeros(n_frames * HOP, np.float32)
     x[:min(len(samples), len(x))] = samples[:len(x)]
     power = np.abs(librosa.stft(x, n_fft=N_FFT, hop_length=HOP, window="hann", center=True, pad_mode="reflect")) ** 2
-    logs = np.log10(np.maximum(_mel_filters() @ power[:, :n_frames], 1e-10))
-    logs = np.maximum(logs, logs.max() - 8.0)
-    return ((logs + 4.0) / 4.0).astype(np.float32)
+    return np.log10(np.maximum(_mel_filters() @ power[:, :n_frames], 1e-10))
+
+
+def whisper_scale(logs: np.ndarray, peak: float) -> np.ndarray:
+    """Whisper's clamp at ``peak`` − 8 (its loudest log10 mel power) and scaling (x + 4) / 4, float32."""
+    return ((np.maximum(logs, peak - 8.0) + 4.0) / 4.0).astype(np.float32)
+
+
+def encode_mel(mel: np.ndarray, threads: int = 1) -> np.ndarray:
+    """Encoder states (n / 2, 384) float32 of one window of scaled log-mel frames (80, n), n even."""
+    import ctranslate2
+    out = load_encoder(threads).encode(ctranslate2.StorageView.from_array(np.ascontiguousarray(mel[None])), to_cpu=True)
+    return np.asarray(out, np.float32)[0]
 
 
 def window_starts(n_mel: int, window: int, overlap: int) -> list[int]:

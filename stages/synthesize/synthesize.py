@@ -30,31 +30,29 @@ any other video goes through ``lipsynth speak`` (which preprocesses it outside D
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.errors import LipsynthError, ParameterError
-from pipeline.face.dlib_face import IOD_MM, LIP_POINTS
-from pipeline.face.geometry import euler_degrees
+from pipeline.errors import LipsynthError
+from pipeline.face.dlib_face import IOD_MM
 from pipeline.models.mouth_prediction import load_audio, predict_mouth
 from pipeline.params import Params, Synthesize
 from pipeline.io.runner import stage_main, write_timing
 from pipeline.io.threads import library_threads
-from pipeline.io.store import atomic_output, create_group, open_group, resize_i420, take
+from pipeline.io.store import atomic_output, create_group, open_group
 from stages.synthesize import retime as rt
 from stages.synthesize.speech_flags import speech_flags
-from stages.synthesize import teeth as th
 from stages.synthesize import texture as tx
 from stages.synthesize import two_band
+from stages.synthesize.texture_pool import synthesize_frame, texture_pool, usable
 
 log = logging.getLogger("lipsynth.synthesize")
-REFERENCE_TEXTURE = 128.0     #: texture px the px-valued params (teeth σ, feathers, unsharp σ) are given at
 
 
 def find_video(videos: list[dict], target: str) -> dict | None:
@@ -63,60 +61,6 @@ def find_video(videos: list[dict], target: str) -> dict | None:
         if v["name"] == target:
             return v
     return None
-
-
-def usable(fr, lmg, v: dict) -> np.ndarray:
-    """Local indices of the frames of video ``v`` with a valid pose and landmarks."""
-    sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])
-    return np.flatnonzero(np.asarray(fr["pose_valid"][sl]) & np.asarray(lmg["valid"][sl]))
-
-
-def candidate_pool(stores: dict, target: dict, p: Synthesize) -> np.ndarray:
-    """Global frame indices (into the target's stores) of the candidate pool; target frames first."""
-    fr, lmg = stores["frontalize"], stores["landmarks"]
-    own = target["first_frame"] + usable(fr, lmg, target)
-    if p.exclude_target_from_pool:
-        own = own[:0]                                  # evaluation: the true frames may not be copied
-    if len(own) >= p.pool_min:
-        return own
-    others = [v for v in fr.attrs["videos"] if v["split"] == "train" and v["n_frames"] and not v.get("excluded")
-              and v["name"] != target["name"]]
-    if not others:
-        log.debug("candidate pool: the target's %d usable frames", len(own))
-        return own
-    # whole videos spread evenly over the corpus: contiguous runs are cheap to read from the store
-    room = p.pool_max - len(own)
-    per_video = np.median([v["n_frames"] for v in others])
-    m = min(len(others), int(np.ceil(room / max(per_video, 1))))
-    picked = [others[k] for k in np.unique(np.linspace(0, len(others) - 1, m).round().astype(int))]
-    extra = np.concatenate([v["first_frame"] + usable(fr, lmg, v) for v in picked])[:room]
-    log.info("target has %d usable frames (< pool_min %d): adding %d training frames of the corpus",
-             len(own), p.pool_min, len(extra))
-    return np.concatenate([own, extra])
-
-
-def read_pool(stores: dict, entry: dict, p: Synthesize):
-    """The candidate pool's frames: ids (P,) int64, textures (P, 3T/2, T) I420, clothing masks
-    (P, T, T) bool, frontal landmarks (P, 68, 2) and poses (P, 6).
-
-    Frames of the stores (``candidate_pool``) carry their global frame index as id; when
-    ``stores`` has a ``bank`` (a model folder's candidate bank, ``lipsynth speak`` for a target of
-    the model's speaker) its frames follow with ids −1, −2, …
-    """
-    fr = stores["frontalize"]
-    pool = candidate_pool(stores, entry, p)
-    parts = [pool, take(fr["texture"], pool), take(fr["clothing_mask"], pool),
-             np.asarray(take(fr["frontal_landmarks"], pool), np.float64), np.asarray(take(fr["pose"], pool), np.float64)]
-    if "bank" in stores:
-        b = stores["bank"]
-        room = max(p.pool_max - len(pool), 0)
-        k = np.arange(b["texture"].shape[0])
-        k = k[np.unique(np.linspace(0, len(k) - 1, min(room, len(k))).round().astype(int))] if room else k[:0]
-        bank = [-1 - k, np.asarray(b["texture"][...])[k], np.asarray(b["clothing_mask"][...])[k],
-                np.asarray(b["frontal_landmarks"][...], np.float64)[k], np.asarray(b["pose"][...], np.float64)[k]]
-        log.info("candidate pool: %d frames of the target + %d of the model's candidate bank", len(pool), len(k))
-        parts = [np.concatenate([a, c]) for a, c in zip(parts, bank)]
-    return tuple(parts)
 
 
 def retarget(lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray, max_spread_gain: float = 1.0) -> np.ndarray:
@@ -136,18 +80,41 @@ def retarget(lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray
 
     lips : (N, 18, 2); model_mean : (18, 2); target_shapes : (M, 18, 2) texture px → (N, 18, 2).
     """
-    target_mean = np.nanmean(target_shapes, axis=0)
-    width = lambda s: np.linalg.norm(s[6] - s[0])                 # 48 → 54, the mouth corners
-    scale = width(target_mean) / width(model_mean)
-    moved = (lips - model_mean) * scale
-    gain = 1.0
-    if max_spread_gain > 1.0:
-        rms = lambda d: float(np.sqrt(np.nanmean(np.sum(d ** 2, axis=-1))))
-        own, predicted = rms(target_shapes - target_mean), rms(moved - moved.mean(0))
-        gain = float(np.clip(own / predicted, 1.0, max_spread_gain)) if predicted > 0 and np.isfinite(own) else 1.0
-    log.info("re-targeting predicted mouth shapes onto the target's mean mouth (offset %.1f px, width × %.2f, "
-             "spread × %.2f)", float(np.linalg.norm((target_mean - model_mean).mean(0))), scale, gain)
-    return target_mean + moved.mean(0) + (moved - moved.mean(0)) * gain if gain != 1.0 else target_mean + moved
+    return Retarget.fit(lips, model_mean, target_shapes, max_spread_gain)(lips)
+
+
+@dataclasses.dataclass
+class Retarget:
+    """The map of ``retarget``: shapes (..., 18, 2) → target_mean + centre + (moved − centre) · gain, with
+    moved = (shape − model_mean) · scale. ``fit`` takes centre and gain from a sequence of predictions (the
+    output's own, offline; the target audio's, live, where the output's future is unknown)."""
+    model_mean: np.ndarray
+    target_mean: np.ndarray
+    scale: float
+    centre: np.ndarray
+    gain: float
+
+    @classmethod
+    def fit(cls, lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray,
+            max_spread_gain: float = 1.0) -> "Retarget":
+        target_mean = np.nanmean(target_shapes, axis=0)
+        width = lambda s: np.linalg.norm(s[6] - s[0])                 # 48 → 54, the mouth corners
+        scale = width(target_mean) / width(model_mean)
+        moved = (lips - model_mean) * scale
+        gain = 1.0
+        if max_spread_gain > 1.0:
+            rms = lambda d: float(np.sqrt(np.nanmean(np.sum(d ** 2, axis=-1))))
+            own, predicted = rms(target_shapes - target_mean), rms(moved - moved.mean(0))
+            gain = float(np.clip(own / predicted, 1.0, max_spread_gain)) if predicted > 0 and np.isfinite(own) else 1.0
+        log.info("re-targeting predicted mouth shapes onto the target's mean mouth (offset %.1f px, width × %.2f, "
+                 "spread × %.2f)", float(np.linalg.norm((target_mean - model_mean).mean(0))), scale, gain)
+        return cls(model_mean, target_mean, scale, moved.mean(0), gain)
+
+    def __call__(self, lips: np.ndarray) -> np.ndarray:
+        moved = (lips - self.model_mean) * self.scale
+        if self.gain == 1.0:
+            return self.target_mean + moved
+        return self.target_mean + self.centre + (moved - self.centre) * self.gain
 
 
 def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray, fps: float, p: Synthesize):
@@ -171,28 +138,6 @@ def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray,
     return mapping, repeated
 
 
-TWO_BAND_FROM = 160                               #: texture px from which ``detail: auto`` takes two_band
-
-
-def detail_method(detail: str, texture_size: int) -> str:
-    """The texture method ``synthesize.detail`` names; ``auto``: ``two_band`` for textures of at least
-    ``TWO_BAND_FROM`` px, else ``median``. Measured (docs/sharp_steady.md, metrics/evaluate.json, the held-out
-    GRID s1 yardstick): at 128 px (GRID s1, the synthetic speaker) candidates are registered to within a
-    texture pixel, the median is as sharp as a real frame and one real frame's detail overshoots (yardstick
-    sharpness 1.33 against the median's 1.19, error ratio 0.774 against 0.750); from ≈ 200 px (GRID s4,
-    HDTF, 1080, 4K) the median's misregistration spans pixels and blurs (0.58–0.75 of the real mouth) while
-    two bands reach 0.9."""
-    if detail != "auto":
-        return detail
-    method = "two_band" if texture_size >= TWO_BAND_FROM else "median"
-    log.info("synthesize.detail: auto → %s (texture %d px; two_band from %d)", method, texture_size, TWO_BAND_FROM)
-    return method
-
-
-NOSE = np.r_[27:36]                               # anchored (at the nearest candidate's) while the lips are aligned
-ALIGNED = np.r_[LIP_POINTS, NOSE]
-
-
 def detail_plan(lips: np.ndarray, shapes: np.ndarray, pool: np.ndarray, p: Synthesize) -> tuple[list, list]:
     """``synthesize.detail: two_band``: per output frame, the real frames whose detail it shows and
     their weights (``two_band.crossfade_plan`` of the Viterbi path, ``two_band.detail_sources``,
@@ -209,30 +154,6 @@ def detail_plan(lips: np.ndarray, shapes: np.ndarray, pool: np.ndarray, p: Synth
     runs = 1 + int(np.sum(np.diff(pool[sources]) != 1))
     log.info("two-band detail: %d output frames from %d runs of consecutive real frames", len(lips), runs)
     return two_band.crossfade_plan(sources, pool, p.detail_fade_frames), searches
-
-
-def median_pool(pool_tex: np.ndarray, max_size: int) -> tuple[np.ndarray, float]:
-    """The pool's textures for the weighted median: (P, 3m/2, m) I420 with m = min(T, ``max_size``), and
-    m / T. Textures larger than ``synthesize.median_max_size`` are area-averaged down once here: the
-    median's cost grows with T² while what it contributes — two_band keeps only its low band — does not."""
-    T = pool_tex.shape[2]
-    m = min(T, int(max_size))
-    if m == T:
-        return pool_tex, 1.0
-    log.info("weighted median at %d px (texture %d px)", m, T)
-    return np.stack([resize_i420(t, m) for t in pool_tex]), m / T
-
-
-def median_size(texture_size: int, method: str, p: Synthesize) -> int:
-    """Texture px the weighted median runs at: at most ``synthesize.median_max_size``; for two_band also at
-    most what its low band can show. That band is the median blurred by σ = ``detail_band_px`` × T/128, which
-    leaves nothing of wavelengths below 2σ; a median sampled at 2 px per σ (T × 2/σ = 256 / detail_band_px px,
-    rounded up to 16, whatever T) resolves all of them. At 720p (T = 192) that is 128 px: less than half
-    the median's work for the same low band."""
-    m = min(int(texture_size), p.median_max_size)
-    if method == "two_band":
-        m = min(m, 16 * int(np.ceil(2 * REFERENCE_TEXTURE / p.detail_band_px / 16)))
-    return m
 
 
 def open_stores(params: Params, pca: bool = True) -> dict:
@@ -295,70 +216,19 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
     mapping, repeated = output_timing(samples, n_out, target_lm, entry["fps"], p)
     timing["retiming"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    pool, pool_tex, pool_cloth, flm, pose = read_pool(stores, entry, p)
-    shapes = flm[:, LIP_POINTS]
+    tp = texture_pool(stores, entry, p)
     if p.retarget == "always" or (p.retarget == "auto" and not same_corpus):
-        lips = retarget(lips, mouth["mean_shape"], shapes, p.max_spread_gain)
-    up, lo = p.teeth_upper, p.teeth_lower
-    def to_pool(j):
-        hit = np.flatnonzero(pool == entry["first_frame"] + j) if j is not None else None
-        if j is not None and not len(hit):
-            raise ParameterError(f"synthesize.teeth_upper/teeth_lower={j}: frame {j} of {entry['name']} is not a "
-                                 f"usable frame of the candidate pool (0 … {entry['n_frames'] - 1}, tracked face)")
-        return None if j is None else int(hit[0])
-
-    px = pool_tex.shape[2] / REFERENCE_TEXTURE        # the px params are given at T = 128: same mm at any texture size
-    detail = dict(s_max=p.teeth_s_max, v_min=p.teeth_v_min, feather_px=px * p.teeth_feather_px,
-                  unsharp_sigma=px * p.unsharp_sigma, unsharp_amount=p.unsharp_amount)
-    plan = searches = proxies = None
-    teeth = []
-    method = detail_method(p.detail, pool_tex.shape[2])
-    if method == "two_band":              # real detail replaces the teeth proxy and the unsharp mask
-        detail["unsharp_amount"] = 0.0
-        plan, searches = detail_plan(lips, shapes, pool, p)
-    else:
-        yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
-        upper, lower = th.pick_teeth_proxies(lambda idx: pool_tex[idx], flm, np.ones(len(pool), bool), yaw=yaw,
-                                             s_max=p.teeth_s_max, v_min=p.teeth_v_min, upper=to_pool(up),
-                                             lower=to_pool(lo))
-        proxies = th.proxies_from_frames(lambda idx: pool_tex[idx], flm, upper, lower,
-                                         sigmas=tuple(px * s for s in p.teeth_sigmas), strength=p.teeth_strength,
-                                         feather_px=px * p.teeth_feather_px)
-        teeth = [int(pool[upper]), int(pool[lower])]
-        log.info("teeth proxies: upper = pool frame %d, lower = pool frame %d%s", upper, lower,
-                 " (given)" if up is not None or lo is not None else " (automatic)")
-    T = pool_tex.shape[2]
-    small, scale = median_pool(pool_tex, median_size(T, method, p))
-    m = small.shape[2]
-    small_cloth = pool_cloth if scale == 1 else np.stack(          # clothing share ×255 at the median's size
-        [cv2.resize(c.astype(np.uint8) * np.uint8(255), (m, m), interpolation=cv2.INTER_AREA) for c in pool_cloth])
+        lips = retarget(lips, mouth["mean_shape"], tp.shapes, p.max_spread_gain)
+    plan = searches = None
+    if tp.method == "two_band":
+        plan, searches = detail_plan(lips, tp.shapes, tp.pool, p)
     timing["candidate_pool"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     phases = dict(candidate_search=0.0, weighted_median=0.0, teeth=0.0, **({"detail": 0.0} if plan else {}))
+    T = tp.T
 
     def one(i):
-        wanted = lips[i].reshape(len(LIP_POINTS), 2)
-        if method != "aligned":
-            get = lambda idx: small[idx]                                               # noqa: E731
-        else:                                   # candidates moved onto the wanted lip points first
-            get = lambda idx: two_band.align_candidates(                                  # noqa: E731
-                small[idx], scale * flm[idx][:, ALIGNED], scale * np.concatenate([wanted, flm[idx[0]][NOSE]]),
-                scale * px * p.detail_warp_px)
-        rgb, info = tx.synthesize_texture(lips[i], shapes, get, flm, p.n, p.alpha, proxies, detail,
-                                          search=searches[i] if searches else None, size=T)
-        if method == "aligned":
-            info["landmarks"][LIP_POINTS] = wanted
-        if plan is not None:
-            t_detail = time.perf_counter()
-            sources = [(th._rgb(pool_tex[r]), flm[r], w) for r, w in plan[i]]
-            rgb = two_band.two_band(rgb, info["landmarks"], sources, px * p.detail_band_px, px * p.detail_warp_px,
-                                    flow_max=p.median_max_size)
-            info["seconds"]["detail"] = time.perf_counter() - t_detail
-        w = info["weights"] / info["weights"].sum()
-        cloth = np.tensordot(w.astype(np.float32), small_cloth[info["indices"]].astype(np.float32), 1)
-        if scale != 1:                                   # area fractions ×255 at the median's size
-            cloth = cv2.resize(cloth / 255, (T, T), interpolation=cv2.INTER_LINEAR)
-        return rgb, info["landmarks"], info["sigma"], info["seconds"], np.round(cloth * 255).astype(np.uint8)
+        return synthesize_frame(tp, lips[i], p, searches[i] if searches else None, plan[i] if plan else None)
 
     with atomic_output(out) as tmp:
         g = create_group(tmp)
@@ -385,8 +255,8 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
         g.create_array("candidate_landmarks", data=cand)
         g.create_array("sigma", data=sig)
         ms = {k: 1000 * v / n_out for k, v in timing.items()}
-        g.attrs.update(dict(target=entry, fps=entry["fps"], n_frames=n_out, pool_size=int(len(pool)),
-                            teeth_proxies=teeth))
+        g.attrs.update(dict(target=entry, fps=entry["fps"], n_frames=n_out, pool_size=int(len(tp.pool)),
+                            teeth_proxies=tp.teeth))
     log.info("synthesized %d textures in %.1f s (thread time per frame: %s ms)", n_out, time.perf_counter() - t_start,
              ", ".join(f"{k} {v:.1f}" for k, v in ms.items()))
     return ms

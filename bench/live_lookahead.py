@@ -1,0 +1,116 @@
+"""What the live front end's look-ahead costs in lip sync (issue 48): the look-ahead curve.
+
+    python bench/live_lookahead.py [--ahead 0 0.1 0.2 0.3 0.5] [--past 1.5] [--hop 0.2] [--pad 2] [--model models/base]
+
+For every clip of GRID speaker 4 (read speech, held out of the base) and of the strangers (natural
+speech), the model's predicted inner-lip opening (lip points 62–66) is correlated at lag 0 with the
+clip's own tracked opening (its cached landmarks: ``bench/strangers.py``'s and ``bench/person_diagnosis.py``'s
+target caches, made by ``lipsynth speak``), once for the offline front end (``predict_mouth``: the whole
+file) and once per look-ahead for the causal one (``pipeline.models.streaming_mouth``: audio pushed in
+20-ms pieces). Writes ``results/live_lookahead.json`` and a plot beside it; ``docs/live.md`` quotes them.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+GROUPS = {"grid_s4": (DATA / "grid_s4", ROOT / "runs" / "s4cache"),
+          "strangers": (DATA / "strangers", ROOT / "runs" / "strangers" / "cache")}
+
+
+def tracked_opening(clip: Path, cache: Path) -> tuple[np.ndarray, float] | None:
+    """(T,) inner-lip opening / inter-ocular distance of the clip's cached landmarks (NaN untracked), fps."""
+    from pipeline.io.store import open_group
+    found = sorted(cache.glob(f"{clip.stem}-*/landmarks.zarr"))
+    if not found:
+        return None
+    g = open_group(str(found[-1]))
+    v = g.attrs["videos"][0]
+    sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])
+    lm, ok = np.asarray(g["landmarks"][sl], np.float64), np.asarray(g["valid"][sl])
+    opening = np.linalg.norm(lm[:, 62] - lm[:, 66], axis=1) / np.linalg.norm(lm[:, 36] - lm[:, 45], axis=1)
+    return np.where(ok, opening, np.nan), float(v["fps"])
+
+
+def corr(truth: np.ndarray, lips: np.ndarray) -> float:
+    pred = np.linalg.norm(lips[:, 13] - lips[:, 16], axis=1)
+    n = min(len(truth), len(pred))
+    ok = np.isfinite(truth[:n])
+    return float(np.corrcoef(truth[:n][ok], pred[:n][ok])[0, 1])
+
+
+def plot(result: dict, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    for name, g in result["groups"].items():
+        xs = [float(a) for a in g["causal"]]
+        line, = ax.plot(xs, [g["causal"][a] for a in g["causal"]], "o-", label=f"{name}: causal")
+        ax.axhline(g["offline"], color=line.get_color(), ls="--", lw=1, label=f"{name}: offline front end")
+    ax.set_xlabel("look-ahead (s)")
+    ax.set_ylabel("median opening corr, lag 0")
+    ax.set_title(f"live front end: past {result['past_s']} s, hop {result['hop_s']} s, pad {result['pad_s']} s")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--ahead", type=float, nargs="+", default=[0.0, 0.1, 0.2, 0.3, 0.5])
+    ap.add_argument("--past", type=float, default=1.5)
+    ap.add_argument("--hop", type=float, default=0.2)
+    ap.add_argument("--pad", type=float, default=2.0)
+    ap.add_argument("--model", default="models/base")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "live_lookahead.json")
+    a = ap.parse_args()
+    from pipeline.io import media
+    from pipeline.models.mouth_prediction import load_audio, predict_mouth
+    from pipeline.models.streaming_mouth import stream_mouth
+    result = dict(model=a.model, past_s=a.past, hop_s=a.hop, pad_s=a.pad, groups={}, clips={},
+                  commit=subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                        text=True).stdout.strip(),
+                  date=datetime.date.today().isoformat(), machine=platform.processor() or platform.machine())
+    for name, (folder, cache) in GROUPS.items():
+        per_clip = {}
+        for clip in sorted(p for p in folder.iterdir() if p.suffix in (".mp4", ".mpg", ".mov")):
+            tracked = tracked_opening(clip, cache)
+            if tracked is None:
+                print(f"{clip.name}: no cached target in {cache} (run bench/strangers.py or speak on it): skipped")
+                continue
+            truth, fps = tracked
+            raw, _ = media.read_audio(str(clip), 16000)
+            row = dict(offline=corr(truth, predict_mouth(load_audio(str(clip)), a.model, fps)["lip_points"]))
+            t0 = time.perf_counter()
+            for ahead in a.ahead:
+                row[str(ahead)] = corr(truth, stream_mouth(raw, a.model, fps, a.past, ahead, a.hop, a.pad))
+            row["stream_seconds_per_audio_second"] = (time.perf_counter() - t0) / len(a.ahead) / (len(raw) / 16000)
+            per_clip[clip.name] = row
+            print(name, clip.name, " ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
+        result["clips"][name] = per_clip
+        result["groups"][name] = dict(
+            clips=len(per_clip), offline=float(np.median([r["offline"] for r in per_clip.values()])),
+            causal={str(ah): float(np.median([r[str(ah)] for r in per_clip.values()])) for ah in a.ahead})
+        print(name, json.dumps(result["groups"][name]), flush=True)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    plot(result, a.out.with_suffix(".png"))
+    print(f"wrote {a.out} and {a.out.with_suffix('.png')}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,364 @@
+"""``lipsynth live`` — a person speaking as the audio arrives: audio stream in, lip-synced video stream out.
+
+    ffmpeg -i speech.m4a -f s16le -ar 16000 -ac 1 - | lipsynth live --target face.mp4 | ffplay -
+    lipsynth live --target face.mp4 --audio speech.wav --realtime --out live.ts
+    lipsynth live --target face.mp4 --audio speech.wav --realtime --hls live/
+
+The target is preprocessed once (``lipsynth prepare TARGET --model MODEL``; live refuses a target that
+is not, naming that command). Audio: 16 kHz mono s16le on stdin (``--audio -``, the default; raw or
+WAV) or a named pipe, or any audio file (``--realtime`` replays it at the pace it plays). Video: the
+target looping by ping-pong, H.264 + AAC in MPEG-TS on stdout (``--out -``) or a file, or an HLS
+folder (``--hls DIR``).
+
+The frames flow through overlapping stages, nothing waits for the whole audio: the causal front end
+(``pipeline.audio.streaming_features``: windows of ``--past`` s before, ``--ahead`` s after, one every
+``--hop`` s) and the LSTM stepped with its state (``pipeline.models.streaming_mouth``) → texture
+synthesis (``stages.synthesize.texture_pool.synthesize_frame``; two-band detail from the nearest real
+frame, held while it runs on) → composite (``stages.composite.composite.composite_frame``), on
+``--threads`` workers → the muxer, in order. Silence gives the rest mouth; when the audio pauses
+(a live stream with nothing arriving for ``--gap`` s) silence is fed at the clock's pace, so the
+target keeps playing; when the machine falls behind by more than ``--max-behind`` s, frames repeat
+the last one instead of being made, so audio and video never drift apart. ``--stats FILE.json``
+writes each frame's latency (an audio sample's arrival → its frame leaving).
+
+The self-check of ``speak`` (dlib re-reading every frame) is not run live: it needs frames after the
+one it judges and costs a core's share; the target's 3D fit is checked before streaming starts.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import queue
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from pipeline.errors import BadInputError
+from pipeline.io.live_io import SAMPLE_RATE, StreamWriter, paced_file, pcm_blocks
+from pipeline.io.runner import run_main, setup_logging
+from pipeline.io.store import i420_to_rgb
+from pipeline.io.threads import library_threads
+from pipeline.models.streaming_mouth import StreamingMouth
+from pipeline.params import Params, load_params
+
+log = logging.getLogger("lipsynth.live")
+
+
+def ping_pong(k: int, n: int) -> int:
+    """Target frame shown at output frame k when n target frames loop forward, backward, forward…"""
+    if n <= 1:
+        return 0
+    r = k % (2 * (n - 1))
+    return r if r < n else 2 * (n - 1) - r
+
+
+class TargetFrames:
+    """The target's frames held in memory as I420 (1.5 bytes per pixel; ping-pong reads them backward,
+    which a decoder cannot do cheaply), at most ``max_bytes`` of them."""
+
+    def __init__(self, path: str, max_bytes: float = 1.2e9):
+        from pipeline.io.media import iter_frames
+        self.frames = []
+        size = 0
+        for _, img in iter_frames(path):
+            yuv = cv2.cvtColor(img, cv2.COLOR_RGB2YUV_I420)
+            size += yuv.nbytes
+            if size > max_bytes:
+                log.warning("%s: only its first %d frames are looped (memory limit %.1f GB)", path, len(self.frames),
+                            max_bytes / 1e9)
+                break
+            self.frames.append(yuv)
+        self.shape = (self.frames[0].shape[0] * 2 // 3, self.frames[0].shape[1])
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def rgb(self, j: int) -> np.ndarray:
+        return i420_to_rgb(self.frames[j])
+
+
+class DetailPicker:
+    """Two-band detail sources chosen causally: the nearest real frame, or the previous source's next
+    frame while it is within ``switch_cost`` of the nearest (``two_band.detail_sources`` without the
+    future: no Viterbi, no cross-fade)."""
+
+    def __init__(self, pool: np.ndarray, switch_cost: float):
+        from stages.synthesize.two_band import next_rows
+        self.next = next_rows(pool)
+        self.switch_cost = switch_cost
+        self.prev = -1
+
+    def pick(self, cost: np.ndarray) -> list[tuple[int, float]]:
+        best = int(np.argmin(cost))
+        cont = self.next[self.prev] if self.prev >= 0 else -1
+        self.prev = int(cont) if cont >= 0 and cost[cont] <= cost[best] + self.switch_cost else best
+        return [(self.prev, 1.0)]
+
+
+class LiveEngine:
+    """Mouth shapes → textures → composited frames, for one prepared target (see the module doc)."""
+
+    def __init__(self, p: Params, stores: dict, entry: dict, target: str, model: str, args):
+        from stages.composite.composite import Target
+        from stages.synthesize import texture as tx
+        from stages.synthesize.synthesize import Retarget
+        from stages.synthesize.texture_pool import texture_pool
+        self.p, self.tx = p, tx
+        self.fps = float(entry["fps"])
+        self.mouth = StreamingMouth(model, self.fps, args.past, args.ahead, args.hop, args.pad)
+        if self.mouth.retrieval:
+            log.warning("%s: its retrieval candidate needs the future (a Viterbi path): live uses its parametric "
+                        "read-out", model)
+        self.tp = texture_pool(stores, entry, p.synthesize)
+        self.tgt = Target(stores["frontalize"], entry, target)
+        self.frames = TargetFrames(target)
+        self.retarget = None
+        if p.synthesize.retarget == "always":
+            self.retarget = Retarget.fit(self.reference_lips(target, model), self.mouth.mean_shape, self.tp.shapes,
+                                         p.synthesize.max_spread_gain)
+        self.detail = DetailPicker(self.tp.pool, p.synthesize.detail_switch_cost) \
+            if self.tp.method == "two_band" else None
+
+    def reference_lips(self, target: str, model: str) -> np.ndarray:
+        """Predicted lips of the target's own audio (the spread the re-targeting widens); the model's mean
+        shape when the target has no audio (spread gain 1)."""
+        from pipeline.models.mouth_prediction import load_audio, predict_mouth
+        try:
+            return predict_mouth(load_audio(target), model, self.fps)["lip_points"]
+        except BadInputError:
+            log.info("%s has no usable audio: re-targeting without widening the spread", target)
+            return self.mouth.mean_shape[None]
+
+    def plan(self, lips: np.ndarray) -> tuple[np.ndarray, dict, list | None]:
+        """Sequential part of a frame (main thread): the re-targeted shape, its candidate search, its detail."""
+        s = self.p.synthesize
+        if self.retarget is not None:
+            lips = self.retarget(lips)
+        search = self.tx.candidate_search(lips, self.tp.shapes, s.n, s.alpha)
+        cost = search.pop("all_d2") / (2 * search["sigma"] ** 2)
+        return lips, search, self.detail.pick(cost) if self.detail else None
+
+    def frame(self, k: int, lips: np.ndarray, search: dict, sources) -> np.ndarray:
+        """Output frame k (worker thread): the texture, composited into its ping-pong target frame."""
+        from stages.composite.composite import composite_frame
+        from stages.synthesize.texture_pool import synthesize_frame
+        j = ping_pong(k, len(self.frames))
+        rgb, _, _, _, inpainted = synthesize_frame(self.tp, lips, self.p.synthesize, search, sources)
+        return composite_frame(self.frames.rgb(j), rgb, j, self.tgt, self.p.composite, None, inpainted)
+
+
+class AudioBuffer:
+    """The audio so far (float32), appended by one thread and sliced by another (capacity doubles)."""
+
+    def __init__(self):
+        self.data, self.n = np.zeros(SAMPLE_RATE * 60, np.float32), 0
+
+    def append(self, block: np.ndarray) -> None:
+        if self.n + len(block) > len(self.data):
+            grown = np.zeros(2 * max(len(self.data), self.n + len(block)), np.float32)
+            grown[:self.n] = self.data[:self.n]
+            self.data = grown
+        self.data[self.n:self.n + len(block)] = block
+        self.n += len(block)
+
+    def slice(self, a: int, b: int) -> np.ndarray:
+        return self.data[a:min(b, self.n)].copy()
+
+
+def prepared(target: str, params: Params, model: str, cache: Path | None, prepared_only: bool):
+    """The target's stores (``speak.prepare_target``), preprocessing only when allowed."""
+    from lipsynth.speak import prepare_target
+    from lipsynth.target import warm_up_worker
+    from pipeline.io.parallel import SharedCluster
+    if prepared_only:
+        return prepare_target(target, params, model, cache, None, prepared_only=True)
+    with SharedCluster(params.cluster, warm_up=warm_up_worker) as cluster:
+        return prepare_target(target, params, model, cache, cluster)
+
+
+def audio_source(args):
+    if args.audio == "-":
+        return pcm_blocks(sys.stdin.buffer, "stdin", log.warning)
+    if not Path(args.audio).exists():
+        raise BadInputError(args.audio, "audio file not found")
+    if Path(args.audio).is_fifo():
+        return pcm_blocks(open(args.audio, "rb"), args.audio, log.warning)
+    return paced_file(args.audio, args.realtime)
+
+
+def run(args, params: Params) -> dict:
+    model = args.model or params.synthesize.model
+    if not Path(args.target).is_file():
+        raise BadInputError(args.target, "target video file not found")
+    t0 = time.perf_counter()
+    p, stores, entry, report = prepared(args.target, params, model, args.cache, prepared_only=True)
+    engine = LiveEngine(p, stores, entry, args.target, model, args)
+    log.info("live: ready in %.1f s (%s); %d target frames at %.3f fps, look-ahead %.2f s, hop %.2f s",
+             time.perf_counter() - t0, report["path"], len(engine.frames), engine.fps, args.ahead, args.hop)
+    return stream(engine, audio_source(args), args)
+
+
+def stream(engine: LiveEngine, source, args) -> dict:
+    """Run the pipeline until the audio ends; returns the stats (latencies, drops, drift)."""
+    fps = engine.fps
+    h, w = engine.frames.shape
+    out_path = None if args.out in (None, "-") else Path(args.out)
+    tmp = out_path.with_name(f".{out_path.name}.part") if out_path else None
+    sink = open(tmp, "wb") if tmp else sys.stdout.buffer
+    writer = StreamWriter(sink, fps, (w, h), SAMPLE_RATE, Path(args.hls) if args.hls else None)
+    audio_q: queue.Queue = queue.Queue(maxsize=500)
+    frames_q: queue.Queue = queue.Queue(maxsize=4 * args.threads)
+    arrivals: list[tuple[int, float]] = []             # (samples received before this block, its arrival)
+    stats = dict(frames=0, repeated=0, silence_fed_s=0.0, latency_ms=[], shape_ms=[])
+    failure: list[BaseException] = []
+
+    def read():
+        try:
+            for block, at in source:
+                audio_q.put((block, at))
+        except BaseException as exc:                   # noqa: BLE001  (handed to the main thread)
+            failure.append(exc)
+        audio_q.put(None)
+
+    def arrival(sample: int) -> float:
+        i = np.searchsorted([a[0] for a in arrivals[-2000:]], sample, side="right") - 1
+        return arrivals[-2000:][max(i, 0)][1]
+
+    def write_frames():
+        last = None
+        try:
+            while (item := frames_q.get()) is not None:
+                k, fut = item
+                frame = fut.result() if fut is not None else last
+                a0, a1 = int(round(k * SAMPLE_RATE / fps)), int(round((k + 1) * SAMPLE_RATE / fps))
+                audio = heard.slice(a0, a1)
+                writer.write(frame, np.pad(audio, (0, a1 - a0 - len(audio))))
+                stats["latency_ms"].append(1000 * (time.monotonic() - frame_arrival[k]))
+                last = frame
+        except BaseException as exc:                   # noqa: BLE001  (a broken pipe: the consumer went away)
+            failure.append(exc)
+            while frames_q.get() is not None:          # unblock the producer until it sees the failure
+                pass
+
+    heard = AudioBuffer()
+    frame_arrival: dict[int, float] = {}
+    reader = threading.Thread(target=read, daemon=True, name="live-audio")
+    writer_thread = threading.Thread(target=write_frames, daemon=True, name="live-writer")
+    reader.start()
+    writer_thread.start()
+    received, ended = 0, False
+    started = None
+    try:
+        with ThreadPoolExecutor(args.threads, thread_name_prefix="live-frame") as pool, library_threads(1):
+            while not ended and not failure:
+                try:
+                    item = audio_q.get(timeout=args.gap)
+                except queue.Empty:                    # nothing arrived: silence at the clock's pace
+                    if started is None:
+                        continue
+                    now = time.monotonic()
+                    due = int((now - started) * SAMPLE_RATE) - received
+                    if due <= 0:
+                        continue
+                    item = (np.zeros(due, np.float32), now)
+                    stats["silence_fed_s"] += due / SAMPLE_RATE
+                if item is None:
+                    ended = True
+                    new = engine.mouth.flush()
+                else:
+                    block, at = item
+                    started = started if started is not None else at - len(block) / SAMPLE_RATE
+                    arrivals.append((received, at))
+                    received += len(block)
+                    heard.append(block)
+                    new = engine.mouth.push(block)
+                for k, _, lips in new:
+                    frame_arrival[k] = arrival(int(k * SAMPLE_RATE / fps))
+                    stats["shape_ms"].append(1000 * (time.monotonic() - frame_arrival[k]))
+                    behind = time.monotonic() - frame_arrival[k]
+                    if stats["frames"] and behind > args.max_behind:
+                        frames_q.put((k, None))          # falling behind: repeat the last frame, keep the clock
+                        stats["repeated"] += 1
+                    else:
+                        lips, search, sources = engine.plan(lips)
+                        frames_q.put((k, pool.submit(engine.frame, k, lips, search, sources)))
+                    stats["frames"] += 1
+            frames_q.put(None)
+            writer_thread.join()
+    finally:
+        if writer_thread.is_alive():
+            frames_q.put(None)
+    broken = any(isinstance(e, BrokenPipeError) for e in failure)
+    try:
+        if not broken:
+            writer.close()
+    except (BrokenPipeError, OSError):
+        broken = True
+    finally:
+        if tmp:
+            sink.close()
+    if failure and not broken:
+        if tmp:
+            tmp.unlink(missing_ok=True)
+        raise failure[0]
+    if broken:
+        if tmp:
+            tmp.unlink(missing_ok=True)
+        log.info("live: the consumer went away after %d frames: stopped", stats["frames"])
+        return stats
+    if tmp:
+        os.replace(tmp, out_path)
+    lat = np.asarray(stats["latency_ms"])
+    stats.update(audio_s=received / SAMPLE_RATE, video_s=stats["frames"] / fps,
+                 drift_frames=stats["frames"] - round(received / SAMPLE_RATE * fps),
+                 latency_median_ms=float(np.median(lat)) if len(lat) else None,
+                 latency_p95_ms=float(np.percentile(lat, 95)) if len(lat) else None)
+    log.info("live: %d frames (%d repeated to keep up), %.1f s of audio; latency median %.0f ms, p95 %.0f ms; "
+             "video − audio = %d frames", stats["frames"], stats["repeated"], stats["audio_s"],
+             stats["latency_median_ms"] or 0, stats["latency_p95_ms"] or 0, stats["drift_frames"])
+    if args.stats:
+        Path(args.stats).write_text(json.dumps(stats, indent=1) + "\n")
+    return stats
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="lipsynth live", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--target", required=True, help="video of the person (prepared with `lipsynth prepare`)")
+    ap.add_argument("--audio", default="-", help="- (stdin, the default) or a named pipe: 16 kHz mono s16le PCM, raw "
+                    "or WAV; or any audio file (with --realtime: replayed at its real pace)")
+    ap.add_argument("--realtime", action="store_true", help="release an audio file's samples at the pace they play")
+    ap.add_argument("--out", default="-", help="MPEG-TS output: - (stdout, the default) or a .ts file")
+    ap.add_argument("--hls", default=None, metavar="DIR", help="write an HLS stream (DIR/index.m3u8) instead")
+    ap.add_argument("--model", default=None, help="LSTM model folder (default: synthesize.model of the params file)")
+    ap.add_argument("--past", type=float, default=1.5, help="seconds of audio before the new frames each window sees")
+    ap.add_argument("--ahead", type=float, default=0.2, help="look-ahead (s): latency bought for lip sync")
+    ap.add_argument("--hop", type=float, default=0.2, help="new audio (s) per front-end window")
+    ap.add_argument("--pad", type=float, default=2.0, help="whisper windows are padded with silence to this (s)")
+    ap.add_argument("--threads", type=int, default=2, help="frame workers (texture + composite)")
+    ap.add_argument("--gap", type=float, default=0.5, help="seconds without audio after which silence is fed")
+    ap.add_argument("--max-behind", type=float, default=1.0,
+                    help="a frame whose audio arrived longer ago than this (s) repeats the last frame")
+    ap.add_argument("--stats", default=None, metavar="JSON", help="write per-frame latencies, drops and drift")
+    ap.add_argument("--params", default=None, help="params file (default: ./params.yaml, else the installed one)")
+    ap.add_argument("--cache", type=Path, default=None, help="folder of prepared targets (as speak's --cache)")
+    ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    a = ap.parse_args(argv)
+    setup_logging(a.verbose)
+    if a.out not in ("-", None) and not a.out.endswith(".ts"):
+        ap.error(f"--out {a.out}: expected - or a .ts file name")
+    if a.hls:
+        a.out = None
+    params = a.params or ("params.yaml" if Path("params.yaml").is_file() else Path(__file__).parents[1] / "params.yaml")
+    return run_main(lambda: run(a, load_params(params)))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
