@@ -31,6 +31,7 @@ import json
 import logging
 import os
 import queue
+import signal
 import sys
 import threading
 import time
@@ -200,9 +201,21 @@ def run(args, params: Params) -> dict:
     t0 = time.perf_counter()
     p, stores, entry, report = prepared(args.target, params, model, args.cache, prepared_only=True)
     engine = LiveEngine(p, stores, entry, args.target, model, args)
+    server = None
+    if args.serve is not None:
+        from lipsynth.live_page import serve
+        server = serve(Path(args.hls), args.serve)
     log.info("live: ready in %.1f s (%s); %d target frames at %.3f fps, look-ahead %.2f s, hop %.2f s",
              time.perf_counter() - t0, report["path"], len(engine.frames), engine.fps, args.ahead, args.hop)
-    return stream(engine, audio_source(args), args)
+    stats = stream(engine, audio_source(args), args)
+    if server is not None:
+        log.info("the stream ended; the page still plays it (Ctrl-C stops)")
+        try:
+            threading.Event().wait()
+        except KeyboardInterrupt:
+            pass
+        server.shutdown()
+    return stats
 
 
 def stream(engine: LiveEngine, source, args) -> dict:
@@ -260,6 +273,8 @@ def stream(engine: LiveEngine, source, args) -> dict:
             while not ended and not failure:
                 try:
                     item = audio_q.get(timeout=args.gap)
+                except KeyboardInterrupt:              # Ctrl-C ends the stream as the audio's end would
+                    item = None
                 except queue.Empty:                    # nothing arrived: silence at the clock's pace
                     if started is None:
                         continue
@@ -337,6 +352,10 @@ def main(argv=None) -> int:
     ap.add_argument("--realtime", action="store_true", help="release an audio file's samples at the pace they play")
     ap.add_argument("--out", default="-", help="MPEG-TS output: - (stdout, the default) or a .ts file")
     ap.add_argument("--hls", default=None, metavar="DIR", help="write an HLS stream (DIR/index.m3u8) instead")
+    ap.add_argument("--serve", nargs="?", type=int, const=0, default=None, metavar="PORT",
+                    help="serve a web page on 127.0.0.1:PORT (default: a free port) that plays the HLS stream with "
+                         "sound; implies --hls (a temporary folder unless given); serves on after the audio ends, "
+                         "until Ctrl-C")
     ap.add_argument("--model", default=None, help="LSTM model folder (default: synthesize.model of the params file)")
     ap.add_argument("--past", type=float, default=1.5, help="seconds of audio before the new frames each window sees")
     ap.add_argument("--ahead", type=float, default=0.2, help="look-ahead (s): latency bought for lip sync")
@@ -352,12 +371,19 @@ def main(argv=None) -> int:
     ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     a = ap.parse_args(argv)
     setup_logging(a.verbose)
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     if a.out not in ("-", None) and not a.out.endswith(".ts"):
         ap.error(f"--out {a.out}: expected - or a .ts file name")
+    if a.serve is not None and not a.hls:
+        import tempfile
+        a.hls = tempfile.mkdtemp(prefix="lipsynth-live-")
     if a.hls:
         a.out = None
     params = a.params or ("params.yaml" if Path("params.yaml").is_file() else Path(__file__).parents[1] / "params.yaml")
-    return run_main(lambda: run(a, load_params(params)))
+    try:
+        return run_main(lambda: run(a, load_params(params)))
+    except KeyboardInterrupt:
+        return 0
 
 
 if __name__ == "__main__":

@@ -184,3 +184,43 @@ def test_live_refuses_a_wav_of_the_wrong_rate_and_closes_its_output(prepared_spe
     err = [line for line in r.stderr.decode().splitlines() if "error" in line.lower()]
     assert len(err) == 1 and "44100 Hz" in err[0] and "Traceback" not in r.stderr.decode()
     assert not out.exists() and not list(tmp_path.glob(".*.part"))
+
+
+def test_the_page_plays_the_live_stream_with_sound(prepared_speaker, tmp_path):
+    """``live --serve``: headless Chromium opens the page while the stream is made; its clock advances and the
+    stream it plays has an audio track that decodes."""
+    import re
+    import threading
+    import time
+    from tests.helpers.browser import page_errors, page_session, screenshot
+    proc = subprocess.Popen([sys.executable, "-m", "lipsynth.cli", "live", "--target", str(SPEAKER / "speaker_00.mp4"),
+                             "--model", "models/lstm", "--cache", str(prepared_speaker), "--audio",
+                             str(SPEAKER / "speaker_03.mp4"), "--realtime", "--hls", str(tmp_path / "hls"), "--serve"],
+                            cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True).start()
+    try:
+        deadline = time.monotonic() + 120
+        while not any("serving http" in line for line in lines):
+            assert proc.poll() is None and time.monotonic() < deadline, "".join(lines)[-2000:]
+            time.sleep(0.2)
+        url = re.search(r"http://127\.0\.0\.1:\d+/", "".join(lines)).group(0)
+        with page_session(url, tmp_path / "profile") as (dt, s):
+            state = ("(() => { const v = document.getElementById('video'); if (!v || !window.lipsynth) "
+                     "return {t: -1, errors: []}; return {t: v.currentTime, ...window.lipsynth, "
+                     "frames: v.webkitDecodedFrameCount, audioBytes: v.webkitAudioDecodedByteCount}; })()")
+            deadline = time.monotonic() + 60
+            while (first := dt.evaluate(s, state))["t"] < 0.5:
+                assert time.monotonic() < deadline and not first["errors"], first
+                time.sleep(0.25)
+            time.sleep(2.0)
+            second = dt.evaluate(s, state)
+            screenshot(dt, s, tmp_path / "page.png")
+            errors = page_errors(dt)
+        assert second["t"] - first["t"] >= 1.0, (first, second)          # the clock advances as it plays
+        assert second["audio"] and "mp4a" in second["audio"], second       # an AAC track…
+        assert second["audioBytes"] > 0 and second["frames"] > 10, second  # …that decodes, beside the video
+        assert errors == [] and second["errors"] == []
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)

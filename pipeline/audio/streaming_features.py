@@ -42,8 +42,8 @@ class StreamingFeatures:
         pads its windows; the states just before an unpadded window's end follow the lips far less).
     """
 
-    def __init__(self, front_end: str, encoder: dict | None = None, past_s: float = 2.0, ahead_s: float = 0.2,
-                 hop_s: float = 0.1, utterance_norm: bool = False, pad_s: float = 3.0):
+    def __init__(self, front_end: str, encoder: dict | None = None, past_s: float = 1.5, ahead_s: float = 0.2,
+                 hop_s: float = 0.2, utterance_norm: bool = False, pad_s: float = 2.0):
         front_ends.check(front_end)
         if not (past_s >= 0 and ahead_s >= 0 and hop_s > 0):
             raise ParameterError(f"streaming front end: past_s={past_s}, ahead_s={ahead_s} must be ≥ 0 and "
@@ -151,8 +151,8 @@ class StreamingFeatures:
         return x.astype(np.float32)
 
 
-def causal_features(samples: np.ndarray, front_end: str, encoder: dict | None = None, past_s: float = 2.0,
-                    ahead_s: float = 0.2, hop_s: float = 0.1, utterance_norm: bool = False, pad_s: float = 3.0,
+def causal_features(samples: np.ndarray, front_end: str, encoder: dict | None = None, past_s: float = 1.5,
+                    ahead_s: float = 0.2, hop_s: float = 0.2, utterance_norm: bool = False, pad_s: float = 2.0,
                     piece_s: float = 0.02) -> np.ndarray:
     """The frames (1 + S // 160, D) a live stream of ``samples`` (raw, not normalised) would give, pushed
     in pieces of ``piece_s`` seconds: what ``bench/live.py`` compares with the offline front end."""

@@ -16,6 +16,7 @@ from pathlib import Path
 from pipeline.models.model_folder import ModelError, read_config
 
 MODEL_FILES = ("weights.pt", "config.json", "arrays.npz")
+LIVE_FILES = ("live.pt", "live.json")          #: the LSTM taught the live front end (``bench/live_student.py``)
 SHIPPED = Path(__file__).resolve().parents[2] / "models" / "base"
 
 
@@ -30,7 +31,8 @@ def sha256(path: Path) -> str:
 def write_manifest(folder, provenance: dict) -> dict:
     """Write ``MANIFEST.json`` (the files' SHA-256 and ``provenance``) into ``folder``; returns it."""
     folder = Path(folder)
-    manifest = dict(provenance, files={name: sha256(folder / name) for name in MODEL_FILES})
+    names = MODEL_FILES + tuple(n for n in LIVE_FILES if (folder / n).is_file())
+    manifest = dict(provenance, files={name: sha256(folder / name) for name in names})
     (folder / "MANIFEST.json").write_text(json.dumps(manifest, indent=2) + "\n")
     return manifest
 

@@ -5,13 +5,19 @@ the video frames whose shape is now known (``lipsynth live``).
 ``push(samples)`` returns the frames k (at ``fps``) whose 100-Hz coefficients around k / fps exist, each
 as (k, coeffs (20,), lip_points (18, 2) canonical texture px). The LSTM's target delay d holds a frame
 back d steps more (the network hears d steps of the future). Digital silence moves the mouth to the
-model's rest shape (``rest_coeffs``), as offline.
+model's rest shape (``rest_coeffs``), as offline. A model folder with a live LSTM (``live.pt``, taught by
+``bench/live_student.py`` to read the causal front end's states as the LSTM reads the offline ones) runs
+it in place of its own when the stream settings are the ones it was taught with.
 
 Only LSTM model folders stream (Voice Puppetry's Viterbi and Karras' windows need the future); a
 personalized model that kept its retrieval candidate streams its parametric read-out (a Viterbi path
 needs the future too) — ``retrieval`` says so.
 """
 from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -22,12 +28,33 @@ from pipeline.errors import ParameterError
 from pipeline.models.model_folder import load_model, read_config
 from pipeline.models.mouth_pca import reconstruct
 
+log = logging.getLogger("lipsynth.live")
+
+
+def load_student(model, model_dir, stream: dict) -> bool:
+    """Put the model folder's live LSTM (``live.pt``: taught by ``bench/live_student.py`` to hear through the
+    causal front end with these ``stream`` settings) into ``model``; False (the offline LSTM, with a
+    warning) when the folder has none or it was taught with other settings."""
+    folder = Path(model_dir)
+    if not (folder / "live.pt").is_file() or not (folder / "live.json").is_file():
+        log.warning("%s has no live LSTM (live.pt; bench/live_student.py makes it): the offline LSTM hears the "
+                    "live front end's short windows — expect weaker lip sync", model_dir)
+        return False
+    taught = json.loads((folder / "live.json").read_text())["stream"]
+    if any(abs(taught[k] - stream[k]) > 1e-9 for k in taught):
+        log.warning("%s: its live LSTM was taught with %s, this stream is %s: using the offline LSTM", model_dir,
+                    taught, stream)
+        return False
+    model.lstm.load_state_dict(torch.load(folder / "live.pt", map_location="cpu", weights_only=True))
+    log.info("live LSTM of %s (taught with the live front end: %s)", model_dir, taught)
+    return True
+
 
 class StreamingMouth:
     """Push 16 kHz mono samples (raw, any level); get [(k, coeffs, lip_points), …] for new frames."""
 
-    def __init__(self, model_dir, fps: float, past_s: float = 2.0, ahead_s: float = 0.2, hop_s: float = 0.1,
-                 pad_s: float = 3.0, device: str = "cpu"):
+    def __init__(self, model_dir, fps: float, past_s: float = 1.5, ahead_s: float = 0.2, hop_s: float = 0.2,
+                 pad_s: float = 2.0, device: str = "cpu"):
         config = read_config(model_dir)
         if config["model"] != "lstm":
             raise ParameterError(f"{model_dir}: a {config['model']} model cannot run live (its inference needs the "
@@ -35,6 +62,8 @@ class StreamingMouth:
         if not 1 <= fps <= 240:
             raise ParameterError(f"fps {fps}: expected a video frame rate between 1 and 240")
         self.model, self.config, arrays = load_model(model_dir, torch.device(device))
+        self.student = load_student(self.model, model_dir, dict(past_s=past_s, ahead_s=ahead_s, hop_s=hop_s,
+                                                                 pad_s=pad_s))
         self.model.eval()
         self.device = torch.device(device)
         self.delay = int(config["delay"])
@@ -117,8 +146,8 @@ class StreamingMouth:
         return out
 
 
-def stream_mouth(samples: np.ndarray, model_dir, fps: float, past_s: float = 2.0, ahead_s: float = 0.2,
-                 hop_s: float = 0.1, pad_s: float = 3.0, piece_s: float = 0.02) -> np.ndarray:
+def stream_mouth(samples: np.ndarray, model_dir, fps: float, past_s: float = 1.5, ahead_s: float = 0.2,
+                 hop_s: float = 0.2, pad_s: float = 2.0, piece_s: float = 0.02) -> np.ndarray:
     """Lip points (T, 18, 2) of a live stream of ``samples`` pushed in ``piece_s`` pieces (the bench's
     comparison with ``predict_mouth``)."""
     sm = StreamingMouth(model_dir, fps, past_s, ahead_s, hop_s, pad_s)

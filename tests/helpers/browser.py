@@ -1,5 +1,6 @@
 """Open a page in headless Chromium over the DevTools protocol: its videos, plots and console errors."""
 import base64
+import contextlib
 import json
 import shutil
 import subprocess
@@ -54,10 +55,12 @@ CHECKS = """(() => ({
 }))()"""
 
 
-def check_in_browser(page: Path, shot: Path) -> dict:
+@contextlib.contextmanager
+def page_session(url: str, profile: Path):
+    """Headless Chromium on ``url``: yields (DevTools client, session id); closes the browser after."""
     pytest.importorskip("websocket", reason="websocket-client (test extra) drives Chromium")
-    profile = shot.parent / "chromium-profile"
     proc = subprocess.Popen([chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+                             "--disable-background-networking", "--disable-component-update", "--disable-sync",
                              "--remote-debugging-port=0", f"--user-data-dir={profile}", "--window-size=1280,900",
                              "--autoplay-policy=no-user-gesture-required", "about:blank"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -75,7 +78,31 @@ def check_in_browser(page: Path, shot: Path) -> dict:
         s = dt.call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
         for domain in ("Page", "Runtime", "Log"):
             dt.call(f"{domain}.enable", s)
-        dt.call("Page.navigate", s, url=page.absolute().as_uri())
+        dt.call("Page.navigate", s, url=url)
+        yield dt, s
+        dt.call("Browser.close")
+    finally:
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def screenshot(dt: DevTools, s: str, shot: Path) -> None:
+    size = dt.call("Page.getLayoutMetrics", s)["cssContentSize"]
+    png = dt.call("Page.captureScreenshot", s, format="png", captureBeyondViewport=True,
+                  clip={"x": 0, "y": 0, "width": size["width"], "height": size["height"], "scale": 1})["data"]
+    shot.write_bytes(base64.b64decode(png))
+
+
+def page_errors(dt: DevTools) -> list:
+    return [e["params"] for e in dt.events if e.get("method") == "Runtime.exceptionThrown"
+            or (e.get("method") == "Runtime.consoleAPICalled" and e["params"].get("type") == "error")
+            or (e.get("method") == "Log.entryAdded" and e["params"]["entry"].get("level") == "error")]
+
+
+def check_in_browser(page: Path, shot: Path) -> dict:
+    with page_session(page.absolute().as_uri(), shot.parent / "chromium-profile") as (dt, s):
         deadline = time.monotonic() + 60
         while True:
             state = dt.evaluate(s, CHECKS)
@@ -85,20 +112,8 @@ def check_in_browser(page: Path, shot: Path) -> dict:
             time.sleep(0.25)
         time.sleep(0.5)                  # let the media controls drop their loading spinner
         state = dt.evaluate(s, CHECKS)
-        size = dt.call("Page.getLayoutMetrics", s)["cssContentSize"]
-        png = dt.call("Page.captureScreenshot", s, format="png", captureBeyondViewport=True,
-                      clip={"x": 0, "y": 0, "width": size["width"], "height": size["height"], "scale": 1})["data"]
-        shot.write_bytes(base64.b64decode(png))
-        errors = [e["params"] for e in dt.events if e.get("method") == "Runtime.exceptionThrown"
-                  or (e.get("method") == "Runtime.consoleAPICalled" and e["params"].get("type") == "error")
-                  or (e.get("method") == "Log.entryAdded" and e["params"]["entry"].get("level") == "error")]
-        dt.call("Browser.close")
-        return dict(state, errors=errors)
-    finally:
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        screenshot(dt, s, shot)
+        return dict(state, errors=page_errors(dt))
 
 
 def assert_page_renders(state: dict, n_videos: int, n_svgs: int) -> None:
