@@ -11,8 +11,8 @@ polled every 0.1 s). ``--long S`` also streams S seconds of speech (the four HDT
 720p target, and runs ``lipsynth speak`` on the same audio, for memory and drift over a long run.
 ``--prepare VIDEO`` times ``prepare`` of another target too (default: a 20-s 720×1280 stranger).
 
-Writes the JSON (medians over the repeats; commit, date, CPU), ``results/live_latency.png`` (latency
-histogram per target) and ``docs/live_figures.md`` (the table ``docs/live.md`` includes).
+Writes the JSON (medians over the repeats; commit, date, CPU), ``docs/live_latency.png`` (latency
+histogram per target) and the page ``docs/live_figures.md``.
 """
 from __future__ import annotations
 
@@ -121,7 +121,7 @@ def plot(result: dict, path: Path) -> None:
 
 
 def table(result: dict) -> str:
-    lines = [f"Measured by `python bench/live.py` on {result['cpu']} ({result['date']}, commit {result['commit']}); "
+    lines = ["# Live, measured", "", f"Measured by `python bench/live.py` on {result['cpu']} ({result['date']}, commit {result['commit']}); "
              f"medians of {result['repeats']} runs; model `{MODEL}`, look-ahead {result['ahead_s']} s.", "",
              "| target | prepare (s) | latency median (ms) | p95 (ms) | from audio to shape, median (ms) | frames "
              "repeated to keep up | video − audio at the end (frames) | peak memory (GB) |",
@@ -140,6 +140,7 @@ def table(result: dict) -> str:
                      f"{r['live']['repeated']} frames repeated, video − audio {r['live']['drift_frames']} frames; "
                      f"`speak` peak memory {r['speak']['peak_gb']:.2f} GB, {r['speak']['seconds']:.0f} s, "
                      f"video − audio {r['speak']['drift_s'] * 1000:.0f} ms.")
+    lines += ["", "![latency histogram](live_latency.png)"]
     return "\n".join(lines) + "\n"
 
 
@@ -194,7 +195,7 @@ def main() -> None:
         shutil.rmtree(tmp, ignore_errors=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(result) + "\n")
-    plot(result, ROOT / "results" / "live_latency.png")
+    plot(result, ROOT / "docs" / "live_latency.png")
     (ROOT / "docs" / "live_figures.md").write_text(table(result))
     print(table(result))
 

@@ -7,7 +7,9 @@ speech), the model's predicted inner-lip opening (lip points 62–66) is correla
 clip's own tracked opening (its cached landmarks: ``bench/strangers.py``'s and ``bench/person_diagnosis.py``'s
 target caches, made by ``lipsynth speak``), once for the offline front end (``predict_mouth``: the whole
 file) and once per look-ahead for the causal one (``pipeline.models.streaming_mouth``: audio pushed in
-20-ms pieces). Writes ``results/live_lookahead.json`` and a plot beside it; ``docs/live.md`` quotes them.
+20-ms pieces), with the model's own LSTM and — where the model folder has one taught with those stream
+settings (``bench/live_student.py``) — with its live LSTM. Writes ``results/live_lookahead.json``, the plot
+``docs/live_lookahead.png`` and the page ``docs/live_lookahead.md``.
 """
 from __future__ import annotations
 
@@ -52,6 +54,33 @@ def corr(truth: np.ndarray, lips: np.ndarray) -> float:
     return float(np.corrcoef(truth[:n][ok], pred[:n][ok])[0, 1])
 
 
+def taught(model: str, stream: dict) -> bool:
+    """Has the model folder a live LSTM taught with these stream settings?"""
+    f = Path(model) / "live.json"
+    return f.is_file() and all(abs(json.loads(f.read_text())["stream"][k] - v) < 1e-9 for k, v in stream.items())
+
+
+def page(result: dict) -> str:
+    aheads = list(next(iter(result["groups"].values()))["causal"])
+    lines = ["# The live front end's look-ahead", "",
+             f"Written by `python bench/live_lookahead.py` ({result['date']}, commit {result['commit']}, "
+             f"{result['machine']}). Median over each group's clips of the correlation, at lag 0, between the model's "
+             f"predicted inner-lip opening and the clip's tracked opening (`{result['model']}`; live windows: "
+             f"{result['past_s']} s before, hop {result['hop_s']} s, padded to {result['pad_s']} s).", "",
+             "| clips | offline front end | " + " | ".join(f"live, look-ahead {a} s" for a in aheads) + " |",
+             "|---|---|" + "---|" * len(aheads)]
+    for name, g in result["groups"].items():
+        cells = []
+        for a in aheads:
+            cell = f"{g['causal'][a]:.3f}"
+            if a in g.get("live", {}):
+                cell += f" → **{g['live'][a]:.3f}** with the live LSTM"
+            cells.append(cell)
+        lines.append(f"| {name} ({g['clips']}) | {g['offline']:.3f} | " + " | ".join(cells) + " |")
+    lines += ["", "![look-ahead curve](live_lookahead.png)", ""]
+    return "\n".join(lines)
+
+
 def plot(result: dict, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -61,6 +90,8 @@ def plot(result: dict, path: Path) -> None:
         xs = [float(a) for a in g["causal"]]
         line, = ax.plot(xs, [g["causal"][a] for a in g["causal"]], "o-", label=f"{name}: causal")
         ax.axhline(g["offline"], color=line.get_color(), ls="--", lw=1, label=f"{name}: offline front end")
+        for a, v in g.get("live", {}).items():
+            ax.plot([float(a)], [v], "*", ms=12, color=line.get_color(), label=f"{name}: live LSTM")
     ax.set_xlabel("look-ahead (s)")
     ax.set_ylabel("median opening corr, lag 0")
     ax.set_title(f"live front end: past {result['past_s']} s, hop {result['hop_s']} s, pad {result['pad_s']} s")
@@ -97,19 +128,25 @@ def main() -> None:
             row = dict(offline=corr(truth, predict_mouth(load_audio(str(clip)), a.model, fps)["lip_points"]))
             t0 = time.perf_counter()
             for ahead in a.ahead:
-                row[str(ahead)] = corr(truth, stream_mouth(raw, a.model, fps, a.past, ahead, a.hop, a.pad))
+                row[str(ahead)] = corr(truth, stream_mouth(raw, a.model, fps, a.past, ahead, a.hop, a.pad,
+                                                           use_student=False))
+                if taught(a.model, dict(past_s=a.past, ahead_s=ahead, hop_s=a.hop, pad_s=a.pad)):
+                    row[f"live {ahead}"] = corr(truth, stream_mouth(raw, a.model, fps, a.past, ahead, a.hop, a.pad))
             row["stream_seconds_per_audio_second"] = (time.perf_counter() - t0) / len(a.ahead) / (len(raw) / 16000)
             per_clip[clip.name] = row
             print(name, clip.name, " ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
         result["clips"][name] = per_clip
         result["groups"][name] = dict(
             clips=len(per_clip), offline=float(np.median([r["offline"] for r in per_clip.values()])),
-            causal={str(ah): float(np.median([r[str(ah)] for r in per_clip.values()])) for ah in a.ahead})
+            causal={str(ah): float(np.median([r[str(ah)] for r in per_clip.values()])) for ah in a.ahead},
+            live={k[5:]: float(np.median([r[k] for r in per_clip.values()])) for k in next(iter(per_clip.values()))
+                  if k.startswith("live ")})
         print(name, json.dumps(result["groups"][name]), flush=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(result, indent=1) + "\n")
-    plot(result, a.out.with_suffix(".png"))
-    print(f"wrote {a.out} and {a.out.with_suffix('.png')}")
+    plot(result, ROOT / "docs" / "live_lookahead.png")
+    (ROOT / "docs" / "live_lookahead.md").write_text(page(result))
+    print(f"wrote {a.out}, docs/live_lookahead.png and docs/live_lookahead.md")
 
 
 if __name__ == "__main__":

@@ -224,3 +224,25 @@ def test_the_page_plays_the_live_stream_with_sound(prepared_speaker, tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def test_a_live_lstm_is_used_only_with_the_stream_settings_it_was_taught(tmp_path):
+    import shutil
+    import torch
+    from pipeline.models.streaming_mouth import StreamingMouth
+    folder = tmp_path / "model"
+    shutil.copytree(ROOT / "models" / "lstm", folder)
+    m = StreamingMouth(folder, 25.0)
+    assert not m.student                                             # no live.pt: the offline LSTM
+    taught = {k: v + 0.5 for k, v in m.model.lstm.state_dict().items()}
+    torch.save(taught, folder / "live.pt")
+    stream = dict(past_s=1.5, ahead_s=0.2, hop_s=0.2, pad_s=2.0)
+    (folder / "live.json").write_text(json.dumps(dict(stream=stream)))
+    m = StreamingMouth(folder, 25.0, **stream)
+    assert m.student
+    for k, v in m.model.lstm.state_dict().items():
+        torch.testing.assert_close(v, taught[k])
+    other = StreamingMouth(folder, 25.0, **dict(stream, ahead_s=0.3))
+    assert not other.student
+    for k, v in other.model.lstm.state_dict().items():
+        torch.testing.assert_close(v, taught[k] - 0.5)

@@ -54,7 +54,7 @@ class StreamingMouth:
     """Push 16 kHz mono samples (raw, any level); get [(k, coeffs, lip_points), …] for new frames."""
 
     def __init__(self, model_dir, fps: float, past_s: float = 1.5, ahead_s: float = 0.2, hop_s: float = 0.2,
-                 pad_s: float = 2.0, device: str = "cpu"):
+                 pad_s: float = 2.0, device: str = "cpu", use_student: bool = True):
         config = read_config(model_dir)
         if config["model"] != "lstm":
             raise ParameterError(f"{model_dir}: a {config['model']} model cannot run live (its inference needs the "
@@ -62,8 +62,8 @@ class StreamingMouth:
         if not 1 <= fps <= 240:
             raise ParameterError(f"fps {fps}: expected a video frame rate between 1 and 240")
         self.model, self.config, arrays = load_model(model_dir, torch.device(device))
-        self.student = load_student(self.model, model_dir, dict(past_s=past_s, ahead_s=ahead_s, hop_s=hop_s,
-                                                                 pad_s=pad_s))
+        self.student = use_student and load_student(self.model, model_dir, dict(past_s=past_s, ahead_s=ahead_s,
+                                                                                 hop_s=hop_s, pad_s=pad_s))
         self.model.eval()
         self.device = torch.device(device)
         self.delay = int(config["delay"])
@@ -147,10 +147,10 @@ class StreamingMouth:
 
 
 def stream_mouth(samples: np.ndarray, model_dir, fps: float, past_s: float = 1.5, ahead_s: float = 0.2,
-                 hop_s: float = 0.2, pad_s: float = 2.0, piece_s: float = 0.02) -> np.ndarray:
+                 hop_s: float = 0.2, pad_s: float = 2.0, piece_s: float = 0.02, use_student: bool = True) -> np.ndarray:
     """Lip points (T, 18, 2) of a live stream of ``samples`` pushed in ``piece_s`` pieces (the bench's
     comparison with ``predict_mouth``)."""
-    sm = StreamingMouth(model_dir, fps, past_s, ahead_s, hop_s, pad_s)
+    sm = StreamingMouth(model_dir, fps, past_s, ahead_s, hop_s, pad_s, use_student=use_student)
     step = max(1, int(piece_s * audio_features.SAMPLE_RATE))
     frames = []
     for a in range(0, len(samples), step):

@@ -37,10 +37,13 @@ one, and the figures are in the metrics).
 from __future__ import annotations
 
 import logging
+import shutil
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
+import torch
 
 from pipeline.io.store import atomic_output
 from pipeline.models import mouth_retrieval
@@ -277,6 +280,20 @@ def align_recordings(data: dict, mean, std, delay: int) -> dict:
     return found
 
 
+def copy_live_lstm(base_folder, base_model, model, folder) -> bool:
+    """The base's live LSTM (``live.pt``, ``bench/live_student.py``) into the person's folder when the kept
+    candidate runs the base's own LSTM (a read-out, not a fine-tune): ``lipsynth live`` then hears the live
+    front end as the base does."""
+    base_folder = Path(base_folder)
+    same = all(torch.equal(a, b) for a, b in zip(base_model.lstm.state_dict().values(),
+                                                  model.lstm.state_dict().values()))
+    if not same or not (base_folder / "live.pt").is_file():
+        return False
+    for name in ("live.pt", "live.json"):
+        shutil.copy(base_folder / name, Path(folder) / name)
+    return True
+
+
 def run(params: Params, base_folder: str, anchor: float = 1e-3) -> dict:
     """Personalize from ``base_folder`` on the stores of ``params`` (ingest, pca, whisper/phonetic);
     write the kept model (with the person's speaker) to ``train.out`` and the metrics to
@@ -348,6 +365,7 @@ def run(params: Params, base_folder: str, anchor: float = 1e-3) -> dict:
                    mean, std, basis, pattrs, rest, extra_arrays=retrieval.get("arrays"))
         metrics["speaker"] = export_speaker(tmp, params.ingest.out, params.landmarks.out, params.frontalize.out,
                                             p.bank_frames, p.identity_frames)
+        metrics["live_lstm"] = copy_live_lstm(base_folder, models["base"], model, tmp)
     curves = {"fine_tune": notes["fine_tune"].pop("history")}
     write_outputs(metrics, curves, p)
     metrics["seconds"] = time.perf_counter() - t0
