@@ -7,8 +7,8 @@ short look-ahead; the model's LSTM was trained on states of 10-s windows, and st
 differ (their normalised distance is about half their spread), which costs lip sync whatever the
 look-ahead (``bench/live_lookahead.py``). No video is needed to undo that: the model itself, run on the
 offline front end, is the teacher. For speech that neither the evaluation people (GRID s4, the
-strangers, Macron, Lieu) nor the personalization benches use — GRID s1 (the base's own corpus, every
-third clip), the Obama clips, the HDTF speech WAVs — the student (a copy of the LSTM) reads the causal
+strangers, Macron, Lieu, HDTF) use and whose licence lets it ship — GRID s1 (CC BY 4.0, the base's own
+corpus, every third clip) and the Obama clips (public domain) — the student (a copy of the LSTM) reads the causal
 states and learns the teacher's hidden states and output (MSE on both; only the LSTM learns, the read-out stays the model's, so
 a person's read-out of the hidden states still fits), for ``--steps`` Adam steps on 2-s sequences; a tenth of the clips is held out
 and the best held-out step kept.
@@ -38,7 +38,7 @@ DATA = ROOT.parent / "shared" / "data"
 
 def speech_files() -> list[Path]:
     grid = sorted((DATA / "grid_s1" / "video").glob("*.mp4"))[::3]
-    return grid + sorted((DATA / "obama").glob("obama_0*.mp4")) + sorted((DATA / "hdtf").glob("*.wav"))
+    return grid + sorted((DATA / "obama").glob("obama_0*.mp4"))
 
 
 def pairs(files, model, config, arrays, stream: dict):
@@ -131,12 +131,14 @@ def main() -> None:
     torch.save(best_state, a.model / "live.pt")
     record = dict(stream=stream, files=len(data), minutes=sum(len(d[0]) for d in data) / 6000, held_out=len(held),
                   held_out_loss_before=start, held_out_loss=best, step_kept=best_step, steps=a.steps, curve=curve,
-                  teacher=str(a.model), seconds=time.perf_counter() - t0)
+                  teacher=a.model.name, data="GRID s1 (every third clip; CC BY 4.0), Obama weekly-address clips "
+                  "(public domain)", seconds=time.perf_counter() - t0)
     (a.model / "live.json").write_text(json.dumps(record, indent=1) + "\n")
     manifest = a.model / "MANIFEST.json"
     if manifest.is_file():
         from pipeline.models.base_model import write_manifest
         m = json.loads(manifest.read_text())
+        m.update(live_recipe="python bench/live_student.py", live_data=record["data"])
         write_manifest(a.model, {k: v for k, v in m.items() if k != "files"})
     print(f"held-out loss {start:.4f} → {best:.4f} (step {best_step}); wrote {a.model / 'live.pt'}")
 

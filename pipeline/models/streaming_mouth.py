@@ -40,6 +40,9 @@ def load_student(model, model_dir, stream: dict) -> bool:
         log.warning("%s has no live LSTM (live.pt; bench/live_student.py makes it): the offline LSTM hears the "
                     "live front end's short windows — expect weaker lip sync", model_dir)
         return False
+    if (folder / "MANIFEST.json").is_file():             # a shipped folder: every file hash-checked first
+        from pipeline.models.base_model import verify
+        verify(folder)
     taught = json.loads((folder / "live.json").read_text())["stream"]
     if any(abs(taught[k] - stream[k]) > 1e-9 for k in taught):
         log.warning("%s: its live LSTM was taught with %s, this stream is %s: using the offline LSTM", model_dir,
