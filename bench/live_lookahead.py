@@ -4,8 +4,8 @@
 
 For every clip of GRID speaker 4 (read speech, held out of the base) and of the strangers (natural
 speech), the model's predicted inner-lip opening (lip points 62–66) is correlated at lag 0 with the
-clip's own tracked opening (its cached landmarks: ``bench/strangers.py``'s and ``bench/person_diagnosis.py``'s
-target caches, made by ``lipsynth speak``), once for the offline front end (``predict_mouth``: the whole
+clip's own tracked opening (``bench/strangers.py``'s ``tracked_opening`` of the cached targets ``lipsynth speak``
+made for ``bench/strangers.py`` and ``bench/person_diagnosis.py``), once for the offline front end (``predict_mouth``: the whole
 file) and once per look-ahead for the causal one (``pipeline.models.streaming_mouth``: audio pushed in
 20-ms pieces), with the model's own LSTM and — where the model folder has one taught with those stream
 settings (``bench/live_student.py``) — with its live LSTM. Writes ``results/live_lookahead.json``, the plot
@@ -28,23 +28,19 @@ import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+from strangers import tracked_opening  # noqa: E402  (bench/strangers.py: the clip's tracked opening)
+
 DATA = ROOT.parent / "shared" / "data"
 GROUPS = {"grid_s4": (DATA / "grid_s4", ROOT / "runs" / "s4cache"),
           "strangers": (DATA / "strangers", ROOT / "runs" / "strangers" / "cache")}
 
 
-def tracked_opening(clip: Path, cache: Path) -> tuple[np.ndarray, float] | None:
-    """(T,) inner-lip opening / inter-ocular distance of the clip's cached landmarks (NaN untracked), fps."""
-    from pipeline.io.store import open_group
-    found = sorted(cache.glob(f"{clip.stem}-*/landmarks.zarr"))
-    if not found:
-        return None
-    g = open_group(str(found[-1]))
-    v = g.attrs["videos"][0]
-    sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])
-    lm, ok = np.asarray(g["landmarks"][sl], np.float64), np.asarray(g["valid"][sl])
-    opening = np.linalg.norm(lm[:, 62] - lm[:, 66], axis=1) / np.linalg.norm(lm[:, 36] - lm[:, 45], axis=1)
-    return np.where(ok, opening, np.nan), float(v["fps"])
+def cpu_name() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return platform.machine()
 
 
 def corr(truth: np.ndarray, lips: np.ndarray) -> float:
@@ -67,7 +63,9 @@ def page(result: dict) -> str:
              f"{result['machine']}). Median over each group's clips of the correlation, at lag 0, between the model's "
              f"predicted inner-lip opening and the clip's tracked opening (`{result['model']}`; live windows: "
              f"{result['past_s']} s before, hop {result['hop_s']} s, padded to {result['pad_s']} s).", "",
-             "| clips | offline front end | " + " | ".join(f"live, look-ahead {a} s" for a in aheads) + " |",
+             "Each causal column is the live front end with the model's own LSTM; where the model folder has a live "
+             "LSTM taught for that look-ahead (`bench/live_student.py`), the arrow gives it.", "",
+             "| clips | offline front end | " + " | ".join(f"causal, look-ahead {a} s" for a in aheads) + " |",
              "|---|---|" + "---|" * len(aheads)]
     for name, g in result["groups"].items():
         cells = []
@@ -77,6 +75,13 @@ def page(result: dict) -> str:
                 cell += f" → **{g['live'][a]:.3f}** with the live LSTM"
             cells.append(cell)
         lines.append(f"| {name} ({g['clips']}) | {g['offline']:.3f} | " + " | ".join(cells) + " |")
+    lines += ["", "The same, as means over the clips (a median of nine short clips moves with one clip):", "",
+              "| clips | offline front end | " + " | ".join(f"look-ahead {a} s" for a in aheads) + " | live LSTM |",
+              "|---|---|" + "---|" * (len(aheads) + 1)]
+    for name, g in result["groups"].items():
+        m = g["mean"]
+        live = ", ".join(f"{m[k]:.3f} ({k[5:]} s)" for k in m if k.startswith("live ")) or "—"
+        lines.append(f"| {name} | {m['offline']:.3f} | " + " | ".join(f"{m[a]:.3f}" for a in aheads) + f" | {live} |")
     lines += ["", "![look-ahead curve](live_lookahead.png)", ""]
     return "\n".join(lines)
 
@@ -115,7 +120,7 @@ def main() -> None:
     result = dict(model=a.model, past_s=a.past, hop_s=a.hop, pad_s=a.pad, groups={}, clips={},
                   commit=subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                                         text=True).stdout.strip(),
-                  date=datetime.date.today().isoformat(), machine=platform.processor() or platform.machine())
+                  date=datetime.date.today().isoformat(), machine=cpu_name())
     for name, (folder, cache) in GROUPS.items():
         per_clip = {}
         for clip in sorted(p for p in folder.iterdir() if p.suffix in (".mp4", ".mpg", ".mov")):
@@ -138,6 +143,8 @@ def main() -> None:
         result["clips"][name] = per_clip
         result["groups"][name] = dict(
             clips=len(per_clip), offline=float(np.median([r["offline"] for r in per_clip.values()])),
+            mean={k: float(np.mean([r[k] for r in per_clip.values()])) for k in next(iter(per_clip.values()))
+                  if k != "stream_seconds_per_audio_second"},
             causal={str(ah): float(np.median([r[str(ah)] for r in per_clip.values()])) for ah in a.ahead},
             live={k[5:]: float(np.median([r[k] for r in per_clip.values()])) for k in next(iter(per_clip.values()))
                   if k.startswith("live ")})

@@ -85,13 +85,10 @@ def score(rows: list[dict], clips: list[Path], work: Path) -> None:
             row["yardstick"] = ys.compare(str(clip), str(out))
 
 
-def model_corr(clip: Path, cache: Path, model: str) -> dict | None:
-    """Where the signal goes before rendering: the model's predicted inner-lip opening (its lip points,
-    62–66) against the clip's own tracked opening (the cached target's landmarks, over the inter-ocular
-    distance), correlation at lag 0 and the best lag within ±5 frames."""
+def tracked_opening(clip: Path, cache: Path) -> tuple[np.ndarray, float] | None:
+    """(T,) inner-lip opening (landmarks 62–66) over the inter-ocular distance of the clip's cached target
+    landmarks (NaN where untracked), and its fps; None when the clip was never preprocessed into ``cache``."""
     from pipeline.io.store import open_group
-    from pipeline.measures.lipsync_measures import best_lag
-    from pipeline.models.mouth_prediction import load_audio, predict_mouth
     found = sorted(cache.glob(f"{clip.stem}-*/landmarks.zarr"))
     if not found:
         return None
@@ -99,9 +96,22 @@ def model_corr(clip: Path, cache: Path, model: str) -> dict | None:
     v = g.attrs["videos"][0]
     sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])
     lm, ok = np.asarray(g["landmarks"][sl], np.float64), np.asarray(g["valid"][sl])
-    truth = np.where(ok, np.linalg.norm(lm[:, 62] - lm[:, 66], axis=1) / np.linalg.norm(lm[:, 36] - lm[:, 45], axis=1),
-                     np.nan)
-    lips = predict_mouth(load_audio(str(clip)), model, v["fps"])["lip_points"]      # 18 points: 61–63, 65–67 inner
+    with np.errstate(invalid="ignore"):
+        opening = np.linalg.norm(lm[:, 62] - lm[:, 66], axis=1) / np.linalg.norm(lm[:, 36] - lm[:, 45], axis=1)
+    return np.where(ok, opening, np.nan), float(v["fps"])
+
+
+def model_corr(clip: Path, cache: Path, model: str) -> dict | None:
+    """Where the signal goes before rendering: the model's predicted inner-lip opening (its lip points,
+    62–66) against the clip's own tracked opening (``tracked_opening``), correlation at lag 0 and the best
+    lag within ±5 frames."""
+    from pipeline.measures.lipsync_measures import best_lag
+    from pipeline.models.mouth_prediction import load_audio, predict_mouth
+    tracked = tracked_opening(clip, cache)
+    if tracked is None:
+        return None
+    truth, fps = tracked
+    lips = predict_mouth(load_audio(str(clip)), model, fps)["lip_points"]      # 18 points: 61–63, 65–67 inner
     pred = np.linalg.norm(lips[:, 13] - lips[:, 16], axis=1)
     n = min(len(truth), len(pred))
     truth, pred = truth[:n], pred[:n]
