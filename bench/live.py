@@ -91,7 +91,8 @@ def live(video: Path, audio: Path, cache: Path, work: Path, extra=()) -> dict:
     lat = np.asarray(s["latency_ms"])
     return dict(median_ms=float(np.median(lat)), p95_ms=float(np.percentile(lat, 95)), frames=s["frames"],
                 repeated=s["repeated"], drift_frames=s["drift_frames"], peak_gb=peak,
-                shape_median_ms=float(np.median(s["shape_ms"])), latency_ms=s["latency_ms"])
+                shape_median_ms=float(np.median(s["shape_ms"])), latency_ms=s["latency_ms"],
+                thread_ms=s["thread_ms_median"], method=s["method"], texture_px=s["texture_px"])
 
 
 def long_audio(seconds: float, path: Path) -> Path:
@@ -124,18 +125,20 @@ def table(result: dict) -> str:
     lines = ["# Live, measured", "", f"Measured by `python bench/live.py` on {result['cpu']} ({result['date']}, commit {result['commit']}); "
              f"medians of {result['repeats']} runs; model `{MODEL}`, look-ahead {result['ahead_s']} s.", "",
              "| target | prepare (s) | latency median (ms) | p95 (ms) | from audio to shape, median (ms) | frames "
-             "repeated to keep up | video − audio at the end (frames) | peak memory (GB) |",
-             "|---|---|---|---|---|---|---|---|"]
+             "repeated to keep up | video − audio at the end (frames) | peak memory (GB) | texture (method, px) | "
+             "thread ms per frame: texture / composite / encode |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in result["targets"].items():
         lines.append(f"| {name} ({r['size']}) | {r['prepare_s']:.1f} | {r['median_ms']:.0f} | {r['p95_ms']:.0f} | "
                      f"{r['shape_median_ms']:.0f} | {r['repeated']} of {r['frames']} | {r['drift_frames']} | "
-                     f"{r['peak_gb']:.2f} |")
+                     f"{r['peak_gb']:.2f} | {r['method']}, {r['texture_px']} | "
+                     f"{r['thread_ms']['texture']:.0f} / {r['thread_ms']['composite']:.0f} / {r['thread_ms']['encode']:.0f} |")
     for name, r in result.get("prepare", {}).items():
         lines.append(f"\n`lipsynth prepare` of {name} ({r['size']}, {r['seconds_of_video']:.0f} s of video): "
                      f"{r['seconds']:.1f} s.")
     if "long" in result:
         r = result["long"]
-        lines.append(f"\n{r['audio_s']:.0f} s of speech: `live` peak memory {r['live']['peak_gb']:.2f} GB, latency "
+        lines.append(f"\nLong run (commit {r['commit']}): {r['audio_s']:.0f} s of speech: `live` peak memory {r['live']['peak_gb']:.2f} GB, latency "
                      f"median {r['live']['median_ms']:.0f} ms / p95 {r['live']['p95_ms']:.0f} ms, "
                      f"{r['live']['repeated']} frames repeated, video − audio {r['live']['drift_frames']} frames; "
                      f"`speak` peak memory {r['speak']['peak_gb']:.2f} GB, {r['speak']['seconds']:.0f} s, "
@@ -147,7 +150,8 @@ def table(result: dict) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--long", type=float, default=0.0, help="seconds of speech for the long run (0: none)")
+    ap.add_argument("--long", type=float, default=0.0, help="seconds of speech for the long run (0: keep the last "
+                    "one --out holds)")
     ap.add_argument("--prepare", type=Path, default=DATA / "strangers" / "latsync_demo2.mp4")
     ap.add_argument("--ahead", type=float, default=0.2)
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "live.json")
@@ -167,6 +171,9 @@ def main() -> None:
             med = {k: float(np.median([r[k] for r in runs])) for k in ("median_ms", "p95_ms", "shape_median_ms",
                                                                        "peak_gb")}
             result["targets"][name] = dict(med, size=f"{info.width}×{info.height}", prepare_s=prep,
+                                           thread_ms={k: float(np.median([r["thread_ms"][k] for r in runs]))
+                                                      for k in runs[0]["thread_ms"]},
+                                           method=runs[0]["method"], texture_px=runs[0]["texture_px"],
                                            frames=runs[0]["frames"], repeated=max(r["repeated"] for r in runs),
                                            drift_frames=max(abs(r["drift_frames"]) for r in runs),
                                            latency_ms=runs[len(runs) // 2]["latency_ms"])
@@ -193,6 +200,11 @@ def main() -> None:
                                              drift_s=info.n_frames / info.fps - heard))
             print("long", result["long"], flush=True)
         shutil.rmtree(tmp, ignore_errors=True)
+    if not a.long and a.out.is_file() and "long" in json.loads(a.out.read_text()):    # kept from its own run
+        before = json.loads(a.out.read_text())
+        result["long"] = dict(before["long"], commit=before["long"].get("commit", before["commit"]))
+    if "long" in result:
+        result["long"].setdefault("commit", result["commit"])
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(result) + "\n")
     plot(result, ROOT / "docs" / "live_latency.png")

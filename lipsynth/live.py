@@ -50,6 +50,7 @@ from pipeline.models.streaming_mouth import StreamingMouth
 from pipeline.params import Params, load_params
 
 log = logging.getLogger("lipsynth.live")
+STOP = threading.Event()          #: set by Ctrl-C or SIGTERM: the stream ends cleanly, as at the end of its audio
 
 
 def ping_pong(k: int, n: int) -> int:
@@ -126,6 +127,7 @@ class LiveEngine:
                                          p.synthesize.max_spread_gain)
         self.detail = DetailPicker(self.tp.pool, p.synthesize.detail_switch_cost) \
             if self.tp.method == "two_band" else None
+        self.thread_ms = dict(texture=[], composite=[], encode=[])      # per frame, thread time
 
     def reference_lips(self, target: str, model: str) -> np.ndarray:
         """Predicted lips of the target's own audio (the spread the re-targeting widens); the model's mean
@@ -151,8 +153,13 @@ class LiveEngine:
         from stages.composite.composite import composite_frame
         from stages.synthesize.texture_pool import synthesize_frame
         j = ping_pong(k, len(self.frames))
+        t0 = time.perf_counter()
         rgb, _, _, _, inpainted = synthesize_frame(self.tp, lips, self.p.synthesize, search, sources)
-        return composite_frame(self.frames.rgb(j), rgb, j, self.tgt, self.p.composite, None, inpainted)
+        t1 = time.perf_counter()
+        out = composite_frame(self.frames.rgb(j), rgb, j, self.tgt, self.p.composite, None, inpainted)
+        self.thread_ms["texture"].append(1000 * (t1 - t0))
+        self.thread_ms["composite"].append(1000 * (time.perf_counter() - t1))
+        return out
 
 
 class AudioBuffer:
@@ -210,10 +217,7 @@ def run(args, params: Params) -> dict:
     stats = stream(engine, audio_source(args), args)
     if server is not None:
         log.info("the stream ended; the page still plays it (Ctrl-C stops)")
-        try:
-            threading.Event().wait()
-        except KeyboardInterrupt:
-            pass
+        STOP.wait()
         server.shutdown()
     return stats
 
@@ -225,7 +229,7 @@ def stream(engine: LiveEngine, source, args) -> dict:
     out_path = None if args.out in (None, "-") else Path(args.out)
     tmp = out_path.with_name(f".{out_path.name}.part") if out_path else None
     sink = open(tmp, "wb") if tmp else sys.stdout.buffer
-    writer = StreamWriter(sink, fps, (w, h), SAMPLE_RATE, Path(args.hls) if args.hls else None)
+    writer = StreamWriter(sink, fps, (w, h), SAMPLE_RATE, Path(args.hls) if args.hls else None, preset=args.preset)
     audio_q: queue.Queue = queue.Queue(maxsize=500)
     frames_q: queue.Queue = queue.Queue(maxsize=4 * args.threads)
     arrivals: list[tuple[int, float]] = []             # (samples received before this block, its arrival)
@@ -252,7 +256,9 @@ def stream(engine: LiveEngine, source, args) -> dict:
                 frame = fut.result() if fut is not None else last
                 a0, a1 = int(round(k * SAMPLE_RATE / fps)), int(round((k + 1) * SAMPLE_RATE / fps))
                 audio = heard.slice(a0, a1)
+                t0 = time.perf_counter()
                 writer.write(frame, np.pad(audio, (0, a1 - a0 - len(audio))))
+                engine.thread_ms["encode"].append(1000 * (time.perf_counter() - t0))
                 stats["latency_ms"].append(1000 * (time.monotonic() - frame_arrival[k]))
                 last = frame
         except BaseException as exc:                   # noqa: BLE001  (a broken pipe: the consumer went away)
@@ -272,13 +278,11 @@ def stream(engine: LiveEngine, source, args) -> dict:
         with ThreadPoolExecutor(args.threads, thread_name_prefix="live-frame") as pool, library_threads(1):
             while not ended and not failure:
                 try:
-                    item = audio_q.get(timeout=args.gap)
-                except KeyboardInterrupt:              # Ctrl-C ends the stream as the audio's end would
-                    item = None
+                    item = None if STOP.is_set() else audio_q.get(timeout=min(args.gap, 0.25))
                 except queue.Empty:                    # nothing arrived: silence at the clock's pace
-                    if started is None:
-                        continue
                     now = time.monotonic()
+                    if started is None or now - arrivals[-1][1] < args.gap:
+                        continue
                     due = int((now - started) * SAMPLE_RATE) - received
                     if due <= 0:
                         continue
@@ -334,7 +338,9 @@ def stream(engine: LiveEngine, source, args) -> dict:
     stats.update(audio_s=received / SAMPLE_RATE, video_s=stats["frames"] / fps,
                  drift_frames=stats["frames"] - round(received / SAMPLE_RATE * fps),
                  latency_median_ms=float(np.median(lat)) if len(lat) else None,
-                 latency_p95_ms=float(np.percentile(lat, 95)) if len(lat) else None)
+                 latency_p95_ms=float(np.percentile(lat, 95)) if len(lat) else None,
+                 thread_ms_median={k: float(np.median(v)) for k, v in engine.thread_ms.items() if v},
+                 method=engine.tp.method, texture_px=engine.tp.T)
     log.info("live: %d frames (%d repeated to keep up), %.1f s of audio; latency median %.0f ms, p95 %.0f ms; "
              "video − audio = %d frames", stats["frames"], stats["repeated"], stats["audio_s"],
              stats["latency_median_ms"] or 0, stats["latency_p95_ms"] or 0, stats["drift_frames"])
@@ -362,6 +368,8 @@ def main(argv=None) -> int:
     ap.add_argument("--hop", type=float, default=0.2, help="new audio (s) per front-end window")
     ap.add_argument("--pad", type=float, default=2.0, help="whisper windows are padded with silence to this (s)")
     ap.add_argument("--threads", type=int, default=2, help="frame workers (texture + composite)")
+    ap.add_argument("--preset", default="ultrafast", help="x264 preset of the stream (default ultrafast: the least "
+                    "CPU per frame, more bits)")
     ap.add_argument("--gap", type=float, default=0.5, help="seconds without audio after which silence is fed")
     ap.add_argument("--max-behind", type=float, default=1.0,
                     help="a frame whose audio arrived longer ago than this (s) repeats the last frame")
@@ -371,7 +379,8 @@ def main(argv=None) -> int:
     ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     a = ap.parse_args(argv)
     setup_logging(a.verbose)
-    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    for sig in (signal.SIGINT, signal.SIGTERM):          # Ctrl-C or a kill ends the stream as its audio's end would
+        signal.signal(sig, lambda *_: STOP.set())
     if a.out not in ("-", None) and not a.out.endswith(".ts"):
         ap.error(f"--out {a.out}: expected - or a .ts file name")
     if a.serve is not None and not a.hls:
@@ -380,10 +389,7 @@ def main(argv=None) -> int:
     if a.hls:
         a.out = None
     params = a.params or ("params.yaml" if Path("params.yaml").is_file() else Path(__file__).parents[1] / "params.yaml")
-    try:
-        return run_main(lambda: run(a, load_params(params)))
-    except KeyboardInterrupt:
-        return 0
+    return run_main(lambda: run(a, load_params(params)))
 
 
 if __name__ == "__main__":

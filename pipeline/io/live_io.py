@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import BinaryIO, Iterator
 
 import av
+import cv2
 import numpy as np
 
 from pipeline.errors import BadInputError
@@ -120,7 +121,8 @@ class StreamWriter:
         self.audio_fifo = av.AudioFifo()
 
     def write(self, frame: np.ndarray, audio: np.ndarray) -> None:
-        vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
+        i420 = cv2.cvtColor(np.ascontiguousarray(frame), cv2.COLOR_RGB2YUV_I420)     # as video_writer: ≈ 10× swscale's speed
+        vf = av.VideoFrame.from_ndarray(i420, format="yuv420p")
         vf.pts = self.frames
         self.frames += 1
         self._mux(self.video.encode(vf))
