@@ -15,7 +15,17 @@ from pipeline.errors import BadInputError, ParameterError
 from pipeline.io.live_io import StreamWriter, pcm_blocks, skip_wav_header
 from tests.conftest import ROOT
 
-SPEAKER = ROOT / "data" / "synthetic_speaker"
+MODEL = ROOT / "models" / "base"          # committed (models/lstm is a DVC output, absent on a clean clone)
+
+
+@pytest.fixture(scope="module")
+def speaker(tmp_path_factory):
+    """Two 6-s clips of the synthetic speaker (speaker_00: the target, speaker_01: the new speech)."""
+    from pipeline.params import load_params
+    from stages.synthetic_speaker.generate import generate_corpus, validated_settings
+    settings = validated_settings(load_params(ROOT / "params.yaml").synthetic_speaker)
+    settings.update(n_videos=2, seconds_per_video=6.0, out_dir=str(tmp_path_factory.mktemp("speaker") / "clips"))
+    return generate_corpus(settings)
 
 
 def speech_like(seconds: float, seed: int = 0) -> np.ndarray:
@@ -62,11 +72,20 @@ def test_streaming_features_refuse_bad_settings():
 def test_streaming_mouth_gives_one_shape_per_frame_and_refuses_other_families():
     from pipeline.models.streaming_mouth import StreamingMouth, stream_mouth
     x = speech_like(2.3, 4)
-    lips = stream_mouth(x, ROOT / "models" / "lstm", 25.0, past_s=1.0, ahead_s=0.2, hop_s=0.2)
+    lips = stream_mouth(x, MODEL, 25.0, past_s=1.0, ahead_s=0.2, hop_s=0.2)
     assert lips.shape == (round(2.3 * 25), 18, 2) and np.isfinite(lips).all()
     assert lips.std(0).mean() > 0                       # the mouth moves
+
+
+def test_other_model_families_are_refused_live(tmp_path):
+    from pipeline.models.model_folder import FAMILY_FILES
+    from pipeline.models.streaming_mouth import StreamingMouth
+    (tmp_path / "brand").mkdir()
+    for name in FAMILY_FILES["brand"]:                   # a folder of the brand family's files (read_config checks them)
+        (tmp_path / "brand" / name).write_bytes(b"")
+    (tmp_path / "brand" / "config.json").write_text(json.dumps(dict(model="brand")))
     with pytest.raises(ParameterError, match="cannot run live"):
-        StreamingMouth(ROOT / "models" / "brand", 25.0)
+        StreamingMouth(tmp_path / "brand", 25.0)
 
 
 def wav_header(rate: int, channels: int, bits: int = 16) -> bytes:
@@ -125,29 +144,31 @@ def test_audio_buffer_slices_across_growth():
 
 
 @pytest.fixture(scope="module")
-def prepared_speaker(tmp_path_factory):
+def prepared_speaker(tmp_path_factory, speaker):
     cache = tmp_path_factory.mktemp("live_cache")
-    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "prepare", str(SPEAKER / "speaker_00.mp4"), "--model",
-                        "models/lstm", "--cache", str(cache)], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "prepare", str(speaker / "speaker_00.mp4"), "--model",
+                        str(MODEL), "--cache", str(cache)], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "prepared" in r.stdout
-    return cache
+    return cache, speaker
 
 
-def live(args, cache, **kw):
-    return subprocess.run([sys.executable, "-m", "lipsynth.cli", "live", "--target", str(SPEAKER / "speaker_00.mp4"),
-                           "--model", "models/lstm", "--cache", str(cache), *args], cwd=ROOT, capture_output=True,
+def live(args, prepared, **kw):
+    cache, speaker = prepared
+    return subprocess.run([sys.executable, "-m", "lipsynth.cli", "live", "--target", str(speaker / "speaker_00.mp4"),
+                           "--model", str(MODEL), "--cache", str(cache), *args], cwd=ROOT, capture_output=True,
                           timeout=600, **kw)
 
 
 def test_live_streams_a_file_with_audio_and_no_drift(prepared_speaker, tmp_path):
     from pipeline.io import media
+    speaker = prepared_speaker[1]
     out, stats = tmp_path / "o.ts", tmp_path / "o.json"
-    r = live(["--audio", str(SPEAKER / "speaker_03.mp4"), "--out", str(out), "--stats", str(stats)], prepared_speaker)
+    r = live(["--audio", str(speaker / "speaker_01.mp4"), "--out", str(out), "--stats", str(stats)], prepared_speaker)
     assert r.returncode == 0, r.stderr[-2000:]
     s = json.loads(stats.read_text())
-    audio, _ = media.read_audio(SPEAKER / "speaker_03.mp4", 16000)
-    fps = media.probe(SPEAKER / "speaker_00.mp4").fps
+    audio, _ = media.read_audio(speaker / "speaker_01.mp4", 16000)
+    fps = media.probe(speaker / "speaker_00.mp4").fps
     assert s["frames"] == round(len(audio) / 16000 * fps) and s["drift_frames"] == 0
     with av.open(str(out)) as c:
         assert {st.type for st in c.streams} == {"video", "audio"}
@@ -159,8 +180,9 @@ def test_live_streams_a_file_with_audio_and_no_drift(prepared_speaker, tmp_path)
 
 def test_live_from_stdin_survives_the_consumer_going_away(prepared_speaker, tmp_path):
     pcm = (speech_like(6.0, 6) * 32767).astype("<i2").tobytes()
-    cmd = (f"{sys.executable} -m lipsynth.cli live --target {SPEAKER / 'speaker_00.mp4'} --model models/lstm "
-           f"--cache {prepared_speaker} | head -c 20000 > {tmp_path / 'head.ts'}")
+    cache, speaker = prepared_speaker
+    cmd = (f"{sys.executable} -m lipsynth.cli live --target {speaker / 'speaker_00.mp4'} --model {MODEL} "
+           f"--cache {cache} | head -c 20000 > {tmp_path / 'head.ts'}")
     r = subprocess.run(["bash", "-o", "pipefail", "-c", cmd], input=pcm, cwd=ROOT, capture_output=True, timeout=600)
     assert r.returncode == 0                             # live's own status too (pipefail)
     assert b"consumer went away" in r.stderr
@@ -168,8 +190,8 @@ def test_live_from_stdin_survives_the_consumer_going_away(prepared_speaker, tmp_
     assert (tmp_path / "head.ts").stat().st_size == 20000
 
 
-def test_live_names_the_command_that_prepares_a_target(tmp_path):
-    r = live(["--audio", str(SPEAKER / "speaker_03.mp4"), "--out", str(tmp_path / "o.ts")], tmp_path / "empty")
+def test_live_names_the_command_that_prepares_a_target(tmp_path, speaker):
+    r = live(["--audio", str(speaker / "speaker_01.mp4"), "--out", str(tmp_path / "o.ts")], (tmp_path / "empty", speaker))
     assert r.returncode == 2
     err = [line for line in r.stderr.decode().splitlines() if "error" in line.lower()]
     assert len(err) == 1 and "not prepared" in err[0] and "lipsynth prepare" in err[0]
@@ -193,9 +215,10 @@ def test_the_page_plays_the_live_stream_with_sound(prepared_speaker, tmp_path):
     import threading
     import time
     from tests.helpers.browser import page_errors, page_session, screenshot
-    proc = subprocess.Popen([sys.executable, "-m", "lipsynth.cli", "live", "--target", str(SPEAKER / "speaker_00.mp4"),
-                             "--model", "models/lstm", "--cache", str(prepared_speaker), "--audio",
-                             str(SPEAKER / "speaker_03.mp4"), "--realtime", "--hls", str(tmp_path / "hls"), "--serve"],
+    cache, speaker = prepared_speaker
+    proc = subprocess.Popen([sys.executable, "-m", "lipsynth.cli", "live", "--target", str(speaker / "speaker_00.mp4"),
+                             "--model", str(MODEL), "--cache", str(cache), "--audio",
+                             str(speaker / "speaker_01.mp4"), "--realtime", "--hls", str(tmp_path / "hls"), "--serve"],
                             cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True).start()
@@ -231,7 +254,9 @@ def test_a_live_lstm_is_used_only_with_the_stream_settings_it_was_taught(tmp_pat
     import torch
     from pipeline.models.streaming_mouth import StreamingMouth
     folder = tmp_path / "model"
-    shutil.copytree(ROOT / "models" / "lstm", folder)
+    shutil.copytree(MODEL, folder)
+    for name in ("live.pt", "live.json", "MANIFEST.json"):          # a model folder without a live LSTM
+        (folder / name).unlink()
     m = StreamingMouth(folder, 25.0)
     assert not m.student                                             # no live.pt: the offline LSTM
     taught = {k: v + 0.5 for k, v in m.model.lstm.state_dict().items()}
