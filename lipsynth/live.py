@@ -192,12 +192,16 @@ def prepared(target: str, params: Params, model: str, cache: Path | None, prepar
 
 
 def audio_source(args):
+    """The audio blocks with their arrival times. A file read without ``--realtime`` arrives at once: no
+    frame is then ever behind its audio (``--max-behind`` is off), the stream is made as fast as it can be."""
     if args.audio == "-":
         return pcm_blocks(sys.stdin.buffer, "stdin", log.warning)
     if not Path(args.audio).exists():
         raise BadInputError(args.audio, "audio file not found")
     if Path(args.audio).is_fifo():
         return pcm_blocks(open(args.audio, "rb"), args.audio, log.warning)
+    if not args.realtime:
+        args.max_behind = float("inf")
     return paced_file(args.audio, args.realtime)
 
 

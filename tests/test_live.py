@@ -170,6 +170,7 @@ def test_live_streams_a_file_with_audio_and_no_drift(prepared_speaker, tmp_path)
     audio, _ = media.read_audio(speaker / "speaker_01.mp4", 16000)
     fps = media.probe(speaker / "speaker_00.mp4").fps
     assert s["frames"] == round(len(audio) / 16000 * fps) and s["drift_frames"] == 0
+    assert s["repeated"] == 0                            # a file without --realtime: every frame is made
     with av.open(str(out)) as c:
         assert {st.type for st in c.streams} == {"video", "audio"}
         frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
