@@ -29,18 +29,12 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
+from live import cpu_name  # noqa: E402  (bench/live.py: the CPU's model name)
 from strangers import tracked_opening  # noqa: E402  (bench/strangers.py: the clip's tracked opening)
 
 DATA = ROOT.parent / "shared" / "data"
 GROUPS = {"grid_s4": (DATA / "grid_s4", ROOT / "runs" / "s4cache"),
           "strangers": (DATA / "strangers", ROOT / "runs" / "strangers" / "cache")}
-
-
-def cpu_name() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return platform.machine()
 
 
 def corr(truth: np.ndarray, lips: np.ndarray) -> float:

@@ -27,6 +27,7 @@ one it judges and costs a core's share; the target's 3D fit is checked before st
 from __future__ import annotations
 
 import argparse
+import bisect
 import json
 import logging
 import os
@@ -249,8 +250,9 @@ def stream(engine: LiveEngine, source, args) -> dict:
         audio_q.put(None)
 
     def arrival(sample: int) -> float:
-        i = np.searchsorted([a[0] for a in arrivals[-2000:]], sample, side="right") - 1
-        return arrivals[-2000:][max(i, 0)][1]
+        recent = arrivals[-2000:]
+        i = bisect.bisect_right(recent, (sample, float("inf"))) - 1
+        return recent[max(i, 0)][1]
 
     def write_frames():
         last = None
