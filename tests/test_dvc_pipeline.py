@@ -418,6 +418,26 @@ def test_personalize_one_video_split_in_time_from_scratch_and_from_the_shipped_b
 
 
 @pytest.mark.slow
+def test_editing_a_parameters_meaning_reruns_nothing(project):
+    """A key's meaning (pipeline/params/help.yaml) and the params.yaml comments rendered from it are
+    prose no stage runs: editing them must leave every stage cached."""
+    meanings = project / "pipeline" / "params" / "help.yaml"
+    params = project / "params.yaml"
+    original = meanings.read_text(), params.read_text()
+    assert "master seed" in original[0]
+    try:
+        meanings.write_text(original[0].replace("master seed", "the seed every clip's sub-seed comes from"))
+        render = ("from lipsynth import params_doc as d; "
+                  "d.PARAMS_YAML.write_text(d.commented_params(d.PARAMS_YAML.read_text()))")
+        subprocess.run([sys.executable, "-c", render], cwd=project, check=True)
+        assert "the seed every clip's sub-seed" in params.read_text()          # the comment was rendered
+        assert "up to date" in dvc(project, "status")
+    finally:
+        meanings.write_text(original[0])
+        params.write_text(original[1])
+
+
+@pytest.mark.slow
 def test_brand_param_reruns_only_train_brand(project):
     with edited_params(project, "brand", "decode", "posterior"):
         status = dvc_status(project)

@@ -9,9 +9,9 @@ value of the wrong type or outside its allowed choices stops with one line namin
 (``params.ingest.crop_size``). A key the file leaves out takes the default below, which equals
 the shipped params.yaml. Code never reads raw dicts of parameters.
 
-Each field says what it means once, here: ``metadata["help"]`` is its one-line meaning (units
-where it has them) and ``metadata["advanced"]`` marks the few keys an ordinary user never
-touches. ``lipsynth params-doc --write`` renders them into docs/parameters_reference.md.
+What each key means is written once, in ``help.yaml`` beside these modules (prose, which no
+stage runs: editing a meaning reruns nothing); ``lipsynth params-doc --write`` renders it into
+docs/parameters_reference.md and into params.yaml's comments.
 
 Applications may adjust a loaded tree (``lipsynth speak`` points the preprocessing outputs at
 its cache): ``copy.deepcopy`` it and assign attributes; ``check`` re-validates.

@@ -1,8 +1,8 @@
 """What every params section shares: value rules checked by ``validate()``.
 
 Types are checked by ``loading.check``; a section's ``validate()`` then checks values: the
-choices of ``CHOICES``, the ``"auto"`` of ``AUTO`` keys, bounds written once beside a field's
-help (``metadata["min"]`` / ``["max"]``, inclusive) and the section's own rules across keys
+choices of ``CHOICES``, the ``"auto"`` of ``AUTO`` keys, bounds written once in a field's
+metadata (``metadata["min"]`` / ``["max"]``, inclusive) and the section's own rules across keys
 (a subclass extends ``validate`` and calls ``super().validate()`` first). A broken rule raises
 ``ParameterError("key=value: what is wrong")``; ``loading.check`` adds the file and section.
 """
