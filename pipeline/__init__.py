@@ -1,16 +1,7 @@
-"""lipsynth's shared library — the bottom layer. It imports no stage and no application
-(``stages/`` and ``lipsynth/`` build on it; see docs/index.md, "Architecture").
+"""lipsynth's shared library — the bottom layer: it imports no stage and no application.
 
-Rooms, lowest first (a module imports its own room and lower rooms only; ``tests/test_layers.py``):
-
-    params.py, errors.py   typed params.yaml sections; the error types every room raises
-    io/        media (PyAV), the zarr store, dask execution, the stage runner
-    face/      dlib landmarks and index sets, geometry, the canonical frontal frame, identity, face mesh
-    audio/     audio features and the front ends models read (MFCC, phones, autocorrelation, voice)
-    video/     frame-level rules shared by synthesis and compositing (repeated frames)
-    models/    the mouth PCA space, each model family's network/inference, the model folder,
-               ensembles, the speaker bank, and ``mouth_prediction`` — the interface every family answers
-    measures/  mouth-shape and lip-sync measures
+Its rooms, their order and what each module holds: docs/architecture.md, the one architecture text
+(``tests/test_architecture_doc.py`` checks it against this package); each room's API: docs/api/.
 """
 import os
 
