@@ -155,9 +155,9 @@ class LiveEngine:
         from stages.synthesize.texture_pool import synthesize_frame
         j = ping_pong(k, len(self.frames))
         t0 = time.perf_counter()
-        rgb, _, _, _, inpainted = synthesize_frame(self.tp, lips, self.p.synthesize, search, sources)
+        texture = synthesize_frame(self.tp, lips, self.p.synthesize, search, sources)
         t1 = time.perf_counter()
-        out = composite_frame(self.frames.rgb(j), rgb, j, self.tgt, self.p.composite, None, inpainted)
+        out = composite_frame(self.frames.rgb(j), texture.rgb, j, self.tgt, self.p.composite, None, texture.inpainted)
         self.thread_ms["texture"].append(1000 * (t1 - t0))
         self.thread_ms["composite"].append(1000 * (time.perf_counter() - t1))
         return out

@@ -176,14 +176,9 @@ def corpus_target(stores: dict, name: str, frontalize_path: str) -> dict:
     return entry
 
 
-def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None = None) -> dict:
-    """Synthesize the textures of ``entry`` (a video of ``stores``) saying ``synthesize.audio``
-    into ``out``; returns the thread time per output frame of each phase (ms).
-
-    ``mouth``: ``predict_mouth``'s output for that audio at the entry's frame rate, when the caller
-    has it already (``lipsynth speak`` predicts while the target is preprocessed); None predicts here.
-    """
-    p = params.synthesize
+def check_target(stores: dict, entry: dict, p: Synthesize) -> None:
+    """Refuse a target with too few usable frames (``synthesize.min_target_fraction``), naming why: too few
+    tracked faces, or faces whose 3D fit failed."""
     fr, lmg = stores["frontalize"], stores["landmarks"]
     n_usable = len(usable(fr, lmg, entry))
     if entry.get("excluded") or not n_usable or n_usable < p.min_target_fraction * entry["n_frames"]:
@@ -194,26 +189,80 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
                f"a face in {n_face} of {entry['n_frames']} frames, but a head pose (3D fit within "
                f"frontalize.max_reprojection) in only {n_usable}: the 3D face model does not fit this video")
         raise LipsynthError(f"{entry['path']}: target has {why} (synthesize.min_target_fraction={p.min_target_fraction})")
-    timing: dict = {}
-    t0 = t_start = time.perf_counter()
-    samples = load_audio(p.audio)
+
+
+def predicted_lips(samples: np.ndarray, stores: dict, entry: dict, p: Synthesize,
+                   mouth: dict | None) -> tuple[np.ndarray, dict, bool]:
+    """The lip points (N, 18, 2) float64 at the store's texture scale, ``mouth`` (predicted here when None; its
+    mean_shape rescaled with the lips) and whether the model was trained on the store's PCA basis."""
     if mouth is None:
         mouth = predict_mouth(samples, p.model, entry["fps"], device=p.device, source=p.audio, emotion=p.emotion)
     same_corpus = "pca" in stores and mouth["pca_fingerprint"] == stores["pca"].attrs["fingerprint"]
     lips = mouth["lip_points"].astype(np.float64)
-    store_iod = IOD_MM / fr.attrs["texture_window"]["mm_per_px"]
+    store_iod = IOD_MM / stores["frontalize"].attrs["texture_window"]["mm_per_px"]
     if mouth["iod_px"] and abs(mouth["iod_px"] - store_iod) > 1e-3:
         # same canonical window in mm, other texture size: scale the model's texture pixels to the store's
         log.info("model texture scale %.1f px per IOD, target store %.1f: lip points rescaled", mouth["iod_px"], store_iod)
         lips *= store_iod / mouth["iod_px"]
         mouth["mean_shape"] = mouth["mean_shape"] * (store_iod / mouth["iod_px"])
-    n_out = len(lips)
-    timing["prediction"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    return lips, mouth, same_corpus
+
+
+def target_landmarks(lmg, entry: dict) -> np.ndarray:
+    """The target's tracked landmarks (M, 68, 2) float64, NaN where no face was tracked."""
     sl = slice(entry["first_frame"], entry["first_frame"] + entry["n_frames"])
     target_lm = np.asarray(lmg["landmarks"][sl], np.float64)
     target_lm[~np.asarray(lmg["valid"][sl])] = np.nan
-    mapping, repeated = output_timing(samples, n_out, target_lm, entry["fps"], p)
+    return target_lm
+
+
+def synthesize_textures(g, tp, lips: np.ndarray, p: Synthesize, searches: list | None,
+                        plan: list | None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Every output frame's ``synthesize_frame`` on ``p.threads`` threads, in blocks of 256, into the arrays
+    texture and inpainted of the group ``g``; returns candidate_landmarks (N, 68, 2), sigma (N,) and the
+    thread seconds per phase summed over the frames."""
+    n_out, T = len(lips), tp.T
+    phases = dict(candidate_search=0.0, weighted_median=0.0, teeth=0.0, **({"detail": 0.0} if plan else {}))
+
+    def one(i):
+        return synthesize_frame(tp, lips[i], p, searches[i] if searches else None, plan[i] if plan else None)
+
+    inpainted = g.create_array("inpainted", shape=(n_out, T, T), dtype="uint8", chunks=(8, T, T),
+                               shards=(256, T, T))
+    tex = g.create_array("texture", shape=(n_out, T, T, 3), dtype="uint8", chunks=(8, T, T, 3),
+                         shards=(256, T, T, 3))
+    cand = np.zeros((n_out, 68, 2), np.float32)
+    sig = np.zeros(n_out, np.float32)
+    with ThreadPoolExecutor(p.threads) as ex, library_threads(1):
+        for a in tqdm(range(0, n_out, 256), desc="synthesize", unit="block", dynamic_ncols=True):
+            res = list(ex.map(one, range(a, min(a + 256, n_out))))
+            tex[a:a + len(res)] = np.stack([r.rgb for r in res])
+            inpainted[a:a + len(res)] = np.stack([r.inpainted for r in res])
+            cand[a:a + len(res)] = [r.landmarks for r in res]
+            sig[a:a + len(res)] = [r.sigma for r in res]
+            for r in res:
+                for k, v in r.seconds.items():
+                    phases[k] += v
+    return cand, sig, phases
+
+
+def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None = None) -> dict:
+    """Synthesize the textures of ``entry`` (a video of ``stores``) saying ``synthesize.audio``
+    into ``out``; returns the thread time per output frame of each phase (ms).
+
+    ``mouth``: ``predict_mouth``'s output for that audio at the entry's frame rate, when the caller
+    has it already (``lipsynth speak`` predicts while the target is preprocessed); None predicts here.
+    """
+    p = params.synthesize
+    check_target(stores, entry, p)
+    timing: dict = {}
+    t0 = t_start = time.perf_counter()
+    samples = load_audio(p.audio)
+    lips, mouth, same_corpus = predicted_lips(samples, stores, entry, p, mouth)
+    n_out = len(lips)
+    timing["prediction"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    mapping, repeated = output_timing(samples, n_out, target_landmarks(stores["landmarks"], entry), entry["fps"], p)
     timing["retiming"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     tp = texture_pool(stores, entry, p)
@@ -223,31 +272,9 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
     if tp.method == "two_band":
         plan, searches = detail_plan(lips, tp.shapes, tp.pool, p)
     timing["candidate_pool"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    phases = dict(candidate_search=0.0, weighted_median=0.0, teeth=0.0, **({"detail": 0.0} if plan else {}))
-    T = tp.T
-
-    def one(i):
-        return synthesize_frame(tp, lips[i], p, searches[i] if searches else None, plan[i] if plan else None)
-
     with atomic_output(out) as tmp:
         g = create_group(tmp)
-        inpainted = g.create_array("inpainted", shape=(n_out, T, T), dtype="uint8", chunks=(8, T, T),
-                                   shards=(256, T, T))
-        tex = g.create_array("texture", shape=(n_out, T, T, 3), dtype="uint8", chunks=(8, T, T, 3),
-                             shards=(256, T, T, 3))
-        cand = np.zeros((n_out, 68, 2), np.float32)
-        sig = np.zeros(n_out, np.float32)
-        with ThreadPoolExecutor(p.threads) as ex, library_threads(1):
-            for a in tqdm(range(0, n_out, 256), desc="synthesize", unit="block", dynamic_ncols=True):
-                res = list(ex.map(one, range(a, min(a + 256, n_out))))
-                tex[a:a + len(res)] = np.stack([r[0] for r in res])
-                inpainted[a:a + len(res)] = np.stack([r[4] for r in res])
-                cand[a:a + len(res)] = [r[1] for r in res]
-                sig[a:a + len(res)] = [r[2] for r in res]
-                for r in res:
-                    for k, v in r[3].items():
-                        phases[k] += v
+        cand, sig, phases = synthesize_textures(g, tp, lips, p, searches, plan)
         timing.update(phases)                              # thread time per phase (threads run in parallel)
         g.create_array("target_frame", data=mapping.astype(np.int32))
         g.create_array("repeated", data=repeated)

@@ -189,13 +189,22 @@ def texture_pool(stores: dict, entry: dict, p: Synthesize) -> TexturePool:
                        detail, px, T, teeth)
 
 
+@dataclasses.dataclass(frozen=True)
+class FrameTexture:
+    """One output frame made by ``synthesize_frame``."""
+    rgb: np.ndarray             #: (T, T, 3) uint8, the texture
+    landmarks: np.ndarray       #: (68, 2) texture px, weight-averaged over the candidates
+    sigma: float                #: σ of the candidate weights (Eq. 12)
+    seconds: dict               #: thread seconds per phase (candidate_search, weighted_median, teeth[, detail])
+    inpainted: np.ndarray       #: (T, T) uint8, the candidates' clothing-inpainted share ×255
+
+
 def synthesize_frame(tp: TexturePool, lip: np.ndarray, p: Synthesize, search: dict | None = None,
-                     sources: list | None = None):
+                     sources: list | None = None) -> FrameTexture:
     """One output frame's texture for the wanted lip points ``lip`` (18, 2) texture px.
 
     ``search``: its ``candidate_search`` when done already; ``sources``: its detail sources [(pool row,
-    weight)] (``two_band``). Returns (rgb (T, T, 3) uint8, landmarks (68, 2) weight-averaged over the
-    candidates, σ, seconds per phase, clothing share (T, T) uint8 ×255)."""
+    weight)] (``two_band``)."""
     wanted = lip.reshape(len(LIP_POINTS), 2)
     small, scale, flm, px, T = tp.small, tp.scale, tp.flm, tp.px, tp.T
     if tp.method != "aligned":
@@ -218,4 +227,4 @@ def synthesize_frame(tp: TexturePool, lip: np.ndarray, p: Synthesize, search: di
     cloth = np.tensordot(w.astype(np.float32), tp.small_cloth[info["indices"]].astype(np.float32), 1)
     if scale != 1:                                   # area fractions ×255 at the median's size
         cloth = cv2.resize(cloth / 255, (T, T), interpolation=cv2.INTER_LINEAR)
-    return rgb, info["landmarks"], info["sigma"], info["seconds"], np.round(cloth * 255).astype(np.uint8)
+    return FrameTexture(rgb, info["landmarks"], info["sigma"], info["seconds"], np.round(cloth * 255).astype(np.uint8))
