@@ -89,13 +89,17 @@ def remap_cubic(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray,
 
     Parameters
     ----------
-    image : (h, w) or (h, w, C) uint8.
-    map_x, map_y : (H, W) float source positions (px); NaN lands outside and takes the border.
-    border_mode : cv2.BORDER_REPLICATE or cv2.BORDER_REFLECT.
+    image : ndarray
+        (h, w) or (h, w, C) uint8.
+    map_x, map_y : ndarray
+        (H, W) float source positions (px); NaN lands outside and takes the border.
+    border_mode : int
+        ``cv2.BORDER_REPLICATE`` or ``cv2.BORDER_REFLECT``.
 
     Returns
     -------
-    (H, W) or (H, W, C) uint8.
+    ndarray
+        (H, W) or (H, W, C) uint8.
     """
     qx, qy = _positions_in_table_steps(map_x), _positions_in_table_steps(map_y)
     cols, wx = _taps(qx, image.shape[1], border_mode)
@@ -119,12 +123,17 @@ def sample_grid_cubic(image: np.ndarray, xs: np.ndarray, ys: np.ndarray,
 
     Parameters
     ----------
-    image : (h, w) or (h, w, C) uint8.
-    xs : (W,) and ys : (H,) float source positions (px).
+    image : ndarray
+        (h, w) or (h, w, C) uint8.
+    xs, ys : ndarray
+        (W,) and (H,) float source positions (px).
+    border_mode : int
+        ``cv2.BORDER_REPLICATE`` or ``cv2.BORDER_REFLECT``.
 
     Returns
     -------
-    (H, W) or (H, W, C) uint8, the same bytes as ``remap_cubic`` with the broadcast maps.
+    ndarray
+        (H, W) or (H, W, C) uint8, the same bytes as ``remap_cubic`` with the broadcast maps.
     """
     cols, wx = _taps(_positions_in_table_steps(xs), image.shape[1], border_mode)
     rows, wy = _taps(_positions_in_table_steps(ys), image.shape[0], border_mode)

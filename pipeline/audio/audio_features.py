@@ -117,14 +117,17 @@ def mfcc_features(samples: np.ndarray, sample_rate: int = SAMPLE_RATE, warp: flo
 
     Parameters
     ----------
-    samples : ndarray, shape (S,)
+    samples : ndarray of shape (S,)
         Mono audio at 16 kHz, already RMS-normalised (see ``rms_normalize``).
+    sample_rate : int
+        Must be 16000 (Hz).
     warp : float
         VTLP factor α (``vtlp_warp``; training augmentation, ``train.vtlp_warps``); 1 = the paper.
 
     Returns
     -------
-    ndarray, shape (1 + S // 160, 28), float32
+    ndarray
+        (1 + S // 160, 28) float32: one row per 10 ms.
     """
     if sample_rate != SAMPLE_RATE:
         raise ParameterError(f"mfcc_features expects {SAMPLE_RATE} Hz audio, got {sample_rate} Hz (resample first)")

@@ -44,13 +44,16 @@ def recognize_phones(samples: np.ndarray, sample_rate: int = SAMPLE_RATE) -> lis
 
     Parameters
     ----------
-    samples : ndarray, shape (S,)
+    samples : ndarray of shape (S,)
         Mono audio at 16 kHz (any level: it is peak-scaled to 16-bit PCM first).
+    sample_rate : int
+        Must be 16000 (Hz).
 
     Returns
     -------
-    list of (phone, first_frame, last_frame) with frames of 10 ms (pocketsphinx's), phone in
-    ``PHONES``; empty for audio the recogniser finds nothing in.
+    list of tuple
+        (phone, first_frame, last_frame) with frames of 10 ms (pocketsphinx's), phone in
+        ``PHONES``; empty for audio the recogniser finds nothing in.
     """
     if sample_rate != SAMPLE_RATE:
         raise ParameterError(f"recognize_phones expects {SAMPLE_RATE} Hz audio, got {sample_rate} Hz (resample first)")

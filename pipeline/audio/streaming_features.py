@@ -34,12 +34,17 @@ class StreamingFeatures:
 
     Parameters
     ----------
-    front_end : the model's ``train.features`` (``mfcc``, ``whisper``, ``phonetic``, combinations).
-    encoder : the model's whisper settings (only ``window_s`` is replaced: the window is this one's).
-    past_s, ahead_s, hop_s : seconds of context before, of look-ahead after, and of new frames per window.
-    utterance_norm : running CMVN (models trained with ``feature_norm: utterance``).
-    pad_s : a whisper window shorter than this is padded to it (silence after the look-ahead, as Whisper
-        pads its windows; the states just before an unpadded window's end follow the lips far less).
+    front_end : str
+        The model's ``train.features`` (``mfcc``, ``whisper``, ``phonetic``, combinations).
+    encoder : dict, optional
+        The model's whisper settings (only ``window_s`` is replaced: the window is this one's).
+    past_s, ahead_s, hop_s : float
+        Seconds of context before, of look-ahead after, and of new frames per window.
+    utterance_norm : bool
+        Running CMVN (models trained with ``feature_norm: utterance``).
+    pad_s : float
+        A whisper window shorter than this (s) is padded to it (silence after the look-ahead, as
+        Whisper pads its windows; the states just before an unpadded window's end follow the lips far less).
     """
 
     def __init__(self, front_end: str, encoder: dict | None = None, past_s: float = 1.5, ahead_s: float = 0.2,

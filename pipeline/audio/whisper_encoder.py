@@ -8,15 +8,16 @@ SHA-256 checked against ``WEIGHTS_SHA256`` before first use; a missing or altere
 ``WeightsError`` line.
 
 Signal chain, for 16 kHz mono samples (S,):
-    1. Whisper's log-mel: 80 Slaney mel bands of |STFT|² (400-point Hann window, 160-sample hop,
-       centred), log10 floored at 1e-10, clamped to (max − 8), then (x + 4) / 4 — computed over
-       the whole audio at once, as Whisper's own long-form transcription does (digital silence
-       reads as nothing the encoder has heard: a frame-feature model rests the mouth there,
-       ``mouth_prediction.rest_in_silence``);
-    2. windows of ``window_s`` seconds (zero-padded at the end, as Whisper pads its 30-s window)
-       overlapping by ``overlap_s``, encoded in one batch: (n_windows, 50·window_s, 384) states,
-       one per 20 ms; overlaps are cross-faded linearly, so there is no seam at a window edge;
-    3. resampled (linear) to the MFCC time axis: frame t centred at t / 100 s, T = 1 + S // 160.
+
+1. Whisper's log-mel: 80 Slaney mel bands of |STFT|² (400-point Hann window, 160-sample hop,
+   centred), log10 floored at 1e-10, clamped to (max − 8), then (x + 4) / 4 — computed over
+   the whole audio at once, as Whisper's own long-form transcription does (digital silence
+   reads as nothing the encoder has heard: a frame-feature model rests the mouth there,
+   ``mouth_prediction.rest_in_silence``);
+2. windows of ``window_s`` seconds (zero-padded at the end, as Whisper pads its 30-s window)
+   overlapping by ``overlap_s``, encoded in one batch: (n_windows, 50·window_s, 384) states,
+   one per 20 ms; overlaps are cross-faded linearly, so there is no seam at a window edge;
+3. resampled (linear) to the MFCC time axis: frame t centred at t / 100 s, T = 1 + S // 160.
 
 CTranslate2 returns only the last encoder layer (no intermediate layers). Cost:
 ``bench/cross_speaker.py`` prints the ms of one core per second of audio.
@@ -151,8 +152,8 @@ def encoder_states(samples: np.ndarray, window_s: float = 10.0, overlap_s: float
 
     Parameters
     ----------
-    samples : (S,) float
-        16 kHz mono audio in [-1, 1].
+    samples : ndarray of shape (S,)
+        16 kHz mono float audio in [-1, 1].
     window_s, overlap_s : float
         Window length and overlap (s); windows are encoded independently and cross-faded.
     threads : int

@@ -37,10 +37,16 @@ class BiLaplacian:
 
     Parameters
     ----------
-    n_vertices : N; triangles : (F, 3) vertex indices.
-    handles : (H,) vertex indices that follow the driving points (may repeat).
-    anchors : (A,) vertex indices held still.
-    handle_weight, anchor_weight : soft-constraint weights (dimensionless; ≫ 1 makes them nearly hard).
+    n_vertices : int
+        N, the mesh's vertex count.
+    triangles : ndarray
+        (F, 3) vertex indices.
+    handles : ndarray
+        (H,) vertex indices that follow the driving points (may repeat).
+    anchors : ndarray
+        (A,) vertex indices held still.
+    handle_weight, anchor_weight : float
+        Soft-constraint weights (dimensionless; ≫ 1 makes them nearly hard).
     """
 
     def __init__(self, n_vertices: int, triangles: np.ndarray, handles: np.ndarray, anchors: np.ndarray,

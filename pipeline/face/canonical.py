@@ -105,12 +105,21 @@ def frontal_landmarks(landmarks: np.ndarray, start_xy: np.ndarray, surface: Surf
 
     Parameters
     ----------
-    landmarks : (P, 2) pixels in the source frame.
-    start_xy : (P, 2) starting model coordinates (mm), e.g. the 3D model's own x, y.
+    landmarks : ndarray
+        (P, 2) pixels in the source frame.
+    start_xy : ndarray
+        (P, 2) starting model coordinates (mm), e.g. the 3D model's own x, y.
+    surface : Surface
+        The extended face surface f* (mm).
+    rvec, tvec, K
+        The frame's pose (Rodrigues rad, mm) and intrinsics (source-frame px).
+    iterations : int
+        The most Newton steps.
 
     Returns
     -------
-    (P, 2) model coordinates (mm) on the canonical plane.
+    ndarray
+        (P, 2) model coordinates (mm) on the canonical plane.
     """
     xy = start_xy.astype(np.float64).copy()
     target = np.asarray(landmarks, np.float64)
@@ -136,14 +145,19 @@ def sample_image(image: np.ndarray, points: np.ndarray, rvec, tvec, K: np.ndarra
 
     Parameters
     ----------
-    image : (h, w, 3) uint8 — a frame or a face-region crop of it.
-    points : (H, W, 3) model points of the texture pixels (e.g. ``TextureWindow.grid_points``).
-    rvec, tvec, K : the frame's pose and intrinsics (source-frame pixels).
-    image_from_frame : (x0, y0, s) — the crop: frame pixel = (x0, y0) + s · image pixel.
+    image : ndarray
+        (h, w, 3) uint8 — a frame or a face-region crop of it.
+    points : ndarray
+        (H, W, 3) model points of the texture pixels, mm (e.g. ``TextureWindow.grid_points``).
+    rvec, tvec, K
+        The frame's pose and intrinsics (source-frame pixels).
+    image_from_frame : tuple
+        (x0, y0, s) — the crop: frame pixel = (x0, y0) + s · image pixel.
 
     Returns
     -------
-    (H, W, 3) uint8 frontal texture.
+    ndarray
+        (H, W, 3) uint8 frontal texture.
     """
     R = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3))[0]
     x0, y0, s = image_from_frame

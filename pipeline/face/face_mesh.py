@@ -41,9 +41,23 @@ def animate(mesh: HeadMesh, surface: Surface, head_landmarks: np.ndarray, point_
 
     Parameters
     ----------
-    mesh : the rest head; head_landmarks : (68, 2) mm, the rest positions of all points (mouth shut).
-    point_ids : (P,) 68-point indices of the driving points; moved : (T, P, 2) their predicted positions (mm).
-    deformer : a ``BiLaplacian`` built by ``deformer_for`` (built here when None).
+    mesh : HeadMesh
+        The rest head.
+    surface : Surface
+        The extended face surface f* (mm); the skin's depth follows it.
+    head_landmarks : ndarray
+        (68, 2) mm, the rest positions of all points (mouth shut).
+    point_ids : sequence of int
+        (P,) 68-point indices of the driving points.
+    moved : ndarray
+        (T, P, 2) their predicted positions (mm).
+    deformer : BiLaplacian, optional
+        Built by ``deformer_for`` (built here when None).
+
+    Returns
+    -------
+    HeadMotion
+        Every part's vertices per frame (mm).
     """
     ids = [int(i) for i in point_ids]
     deformer = deformer or deformer_for(mesh, head_landmarks, ids)

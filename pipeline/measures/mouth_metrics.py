@@ -46,14 +46,28 @@ def evaluate_videos(predictions: list[np.ndarray], truths: list[np.ndarray], val
 
     Parameters
     ----------
-    predictions : per video, (T, k) predicted PCA coefficients at frame times
-    truths : per video, (T, k) tracked coefficients; valids: (T,) bool
+    predictions : list of ndarray
+        Per video, (T, k) predicted PCA coefficients at frame times.
+    truths : list of ndarray
+        Per video, (T, k) tracked coefficients.
+    valids : list of ndarray
+        Per video, (T,) bool: the frames whose mouth was tracked.
+    fps : list of float
+        Per video, frames per second.
+    basis : dict
+        The mouth PCA (``mean``, ``components``: coefficients → lip points, px).
+    iod_px : float
+        The speaker's inter-ocular distance (px), the unit of ``mouth_error_iod_pct``.
+    max_lag_s : float
+        The largest audio–visual lag searched (s).
 
     Returns
     -------
-    dict with mouth_error_px, mouth_error_iod_pct, and the audio–visual offset measures
-    av_within_one_frame (fraction of clips whose best lag is within ±1 frame),
-    median_opening_corr (lag 0), per_clip (list of (best_lag_frames, corr_lag0)).
+    dict
+        ``mouth_error_px``, ``mouth_error_iod_pct``, and the audio–visual offset measures
+        ``av_within_one_frame`` (fraction of clips whose best lag is within ±1 frame),
+        ``median_opening_corr`` (lag 0), ``median_best_lag_frames`` and ``n_clips`` (the clips
+        with a measured lag).
     """
     errs, per_clip = [], []
     for pred, true, ok, f in zip(predictions, truths, valids, fps):

@@ -43,12 +43,24 @@ def resample_to_100hz(coeffs: np.ndarray, valid: np.ndarray, frame_time: np.ndar
 
     Parameters
     ----------
-    coeffs : (T, k); valid : (T,) bool; frame_time : (T,) seconds from the video start.
+    coeffs : ndarray
+        (T, k) per-frame coefficients.
+    valid : ndarray
+        (T,) bool.
+    frame_time : ndarray
+        (T,) seconds from the video start.
+    n_out : int
+        Output frames.
+    rate : float
+        Output rate (Hz).
 
     Returns
     -------
-    (n_out, k) float32 and (n_out,) bool — valid where both bracketing frames are valid
-    (times past the last frame hold the last frame, valid if it is).
+    coeffs : ndarray
+        (n_out, k) float32.
+    valid : ndarray
+        (n_out,) bool — valid where both bracketing frames are valid (times past the last frame
+        hold the last frame, valid if it is).
     """
     t = np.arange(n_out) / rate
     hi = np.clip(np.searchsorted(frame_time, t, side="right"), 1, len(frame_time) - 1)

@@ -17,14 +17,19 @@ def flow_at_most(dis, a: np.ndarray, b: np.ndarray, max_size: int, blur_sigma: f
 
     Parameters
     ----------
-    dis : a ``cv2.DISOpticalFlow`` (or any object with ``calc(grey0, grey1, None)``).
-    a, b : (T, T) uint8 grey images.
-    max_size : px, the largest side the flow is computed at.
-    blur_sigma : px at the computed size; > 0 smooths both copies first (Gaussian).
+    dis : cv2.DISOpticalFlow
+        Or any object with ``calc(grey0, grey1, None)``.
+    a, b : ndarray
+        (T, T) uint8 grey images.
+    max_size : int
+        px, the largest side the flow is computed at.
+    blur_sigma : float
+        px at the computed size; > 0 smooths both copies first (Gaussian).
 
     Returns
     -------
-    (T, T, 2) float32 displacement (dx, dy) in px of the full size.
+    ndarray
+        (T, T, 2) float32 displacement (dx, dy) in px of the full size.
     """
     size = a.shape[0]
     n = min(size, int(max_size))

@@ -43,12 +43,15 @@ def interpolate_repeats(source: FrameSource, mapping: np.ndarray) -> Iterator[np
 
     Parameters
     ----------
-    source : sequence indexed by target frame j, or a callable get(j), giving (H, W, 3) uint8.
-    mapping : (N,) int, target frame per output frame (``retime``).
+    source : sequence or callable
+        Indexed by target frame j, or a callable get(j), giving (H, W, 3) uint8.
+    mapping : ndarray
+        (N,) int, target frame per output frame (``retime``).
 
     Yields
     ------
-    (H, W, 3) uint8, N images (new arrays; the source frames are not modified).
+    ndarray
+        (H, W, 3) uint8, N images (new arrays; the source frames are not modified).
     """
     get = source if callable(source) else source.__getitem__
     idx = np.asarray(mapping, np.int64).ravel()
@@ -81,15 +84,18 @@ def halfway_frame(prev: np.ndarray, next_: np.ndarray, flow=None, max_side: int 
 
     Parameters
     ----------
-    prev, next_ : (H, W, 3) uint8 (any channel order).
-    flow : a cv2.DISOpticalFlow (or any object with ``calc(grey0, grey1, None)``); default DIS
-        fast preset.
-    max_side : the flow is estimated on the frames shrunk by an integer factor so their longer
+    prev, next_ : ndarray
+        (H, W, 3) uint8 (any channel order).
+    flow : cv2.DISOpticalFlow, optional
+        Or any object with ``calc(grey0, grey1, None)``; default DIS fast preset.
+    max_side : int
+        The flow is estimated on the frames shrunk by an integer factor so their longer
         side is at most this (px), then scaled back up.
 
     Returns
     -------
-    (H, W, 3) uint8.
+    ndarray
+        (H, W, 3) uint8.
     """
     if flow is None:
         flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
