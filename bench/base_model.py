@@ -32,23 +32,24 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 
 from pipeline.params import as_dict, front_end_store, parse  # noqa: E402
+from stages import registry  # noqa: E402
 
-PERSON_STAGES = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
-                 ("frontalize", "stages.frontalize.frontalize"), ("whisper", "stages.whisper.whisper")]
+PERSON_STAGES = ("ingest", "landmarks", "frontalize", "whisper")   # another person's stores (no PCA: the main corpus')
 
 
 def person_params(main: dict, videos: str, folder: Path) -> dict:
     """The main params with this person's videos and every store inside ``folder``."""
     tree = yaml.safe_load(yaml.safe_dump(main))
     tree["data"].update(videos=videos, on_bad_input="skip", val_fraction=0.0)
-    for stage, _ in PERSON_STAGES:
+    for stage in PERSON_STAGES:
         tree[stage]["out"] = str(folder / f"{stage}.zarr")
     return as_dict(parse(tree, str(folder / "params.yaml")))
 
 
-def run(module: str, params_file: Path) -> float:
+def run(stage: str, params_file: Path) -> float:
+    """Run the registered stage ``stage`` on ``params_file`` as a subprocess; its seconds."""
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", module, "--params", str(params_file)], cwd=ROOT, check=True)
+    subprocess.run(registry.stage(stage).argv(params_file), cwd=ROOT, check=True)
     return time.perf_counter() - t0
 
 
@@ -71,11 +72,11 @@ def main() -> None:
         folder.mkdir(parents=True, exist_ok=True)
         pfile = folder / "params.yaml"
         pfile.write_text(yaml.safe_dump(person_params(main_params, videos, folder), sort_keys=False))
-        for stage, module in PERSON_STAGES:
+        for stage in PERSON_STAGES:
             if (folder / f"{stage}.zarr").exists():
                 print(f"== {name} {stage}: exists, kept", flush=True)
                 continue
-            print(f"== {name} {stage}: {run(module, pfile):.0f} s", flush=True)
+            print(f"== {name} {stage}: {run(stage, pfile):.0f} s", flush=True)
         folders.append(str(folder))
     tree = yaml.safe_load(yaml.safe_dump(main_params))
     tree["train"].update(extra_corpora=folders, extra_repeat=a.repeat, baselines=False,
@@ -86,7 +87,7 @@ def main() -> None:
     tree["train"]["feature_store"] = front_end_store(tree)
     tfile = a.out / "params.yaml"
     tfile.write_text(yaml.safe_dump(as_dict(parse(tree, str(tfile))), sort_keys=False))
-    print(f"== base model: {run('stages.train.train', tfile):.0f} s → {a.out / 'model'}", flush=True)
+    print(f"== base model: {run('train', tfile):.0f} s → {a.out / 'model'}", flush=True)
 
 
 if __name__ == "__main__":

@@ -30,11 +30,12 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 
 from pipeline.params import front_end_store  # noqa: E402
+from stages import registry  # noqa: E402
+from stages.registry import PREPROCESSING  # noqa: E402
 
 LENGTHS = (20, 40, 60, None)
-PREP = ("ingest.ingest", "landmarks.landmarks", "frontalize.frontalize", "pca.pca", "whisper.whisper")
-FAMILIES = {"lstm": ("train", "stages.train.train"), "lstm_base": ("train", "stages.train.train"),
-            "brand": ("brand", "stages.train_brand.train_brand"), "karras": ("karras", "stages.train_karras.train_karras")}
+FAMILIES = {"lstm": registry.stage("train"), "lstm_base": registry.stage("train"),
+            "brand": registry.stage("train_brand"), "karras": registry.stage("train_karras")}
 
 
 def base_params(videos: str, run: Path) -> dict:
@@ -46,7 +47,7 @@ def base_params(videos: str, run: Path) -> dict:
 
 
 def cell(t: dict, family: str, secs, run: Path, base: str) -> dict:
-    section, _ = FAMILIES[family]
+    section = FAMILIES[family].section
     tag = f"{family}_{secs or 'all'}"
     s = t[section]
     s.update(out=str(run / "models" / tag), metrics=str(run / "metrics" / f"{tag}.json"),
@@ -72,9 +73,9 @@ def main() -> None:
     prep = a.run / "params.yaml"
     if not prep.exists():
         prep.write_text(yaml.safe_dump(base_params(a.videos, a.run), sort_keys=False))
-    for module in PREP:
-        if not Path(yaml.safe_load(prep.read_text())[module.split(".")[0]]["out"]).exists():
-            subprocess.run([sys.executable, "-m", f"stages.{module}", "--params", str(prep)], cwd=ROOT, check=True)
+    for name in PREPROCESSING:
+        if not Path(yaml.safe_load(prep.read_text())[name]["out"]).exists():
+            subprocess.run(registry.stage(name).argv(prep), cwd=ROOT, check=True)
     table = {}
     for family in a.families:
         for secs in LENGTHS:
@@ -82,9 +83,9 @@ def main() -> None:
             t["train"]["feature_store"] = front_end_store(t)
             pfile = a.run / f"p_{family}_{secs or 'all'}.yaml"
             pfile.write_text(yaml.safe_dump(t, sort_keys=False))
-            metrics = Path(t[FAMILIES[family][0]]["metrics"])
+            metrics = Path(t[FAMILIES[family].section]["metrics"])
             if not metrics.exists():
-                subprocess.run([sys.executable, "-m", FAMILIES[family][1], "--params", str(pfile)], cwd=ROOT, check=True,
+                subprocess.run(FAMILIES[family].argv(pfile), cwd=ROOT, check=True,
                                stdout=subprocess.DEVNULL)
             m = json.loads(metrics.read_text())
             val = m["val"] if "val" in m else m["entropic"]["val"]

@@ -32,15 +32,13 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 
 from pipeline.params import as_dict, front_end_store, parse  # noqa: E402
+from stages import registry  # noqa: E402
+from stages.registry import PREPROCESSING  # noqa: E402
 
-STAGES = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
-          ("frontalize", "stages.frontalize.frontalize"), ("pca", "stages.pca.pca"),
-          ("whisper", "stages.whisper.whisper"), ("train", "stages.train.train"),
-          ("brand", "stages.train_brand.train_brand"), ("karras", "stages.train_karras.train_karras"),
-          ("delay_sweep", "stages.train.sweep")]
+STAGES = (*PREPROCESSING, "train", "train_brand", "train_karras", "delay_sweep")
 FRONT_END_KEYS = ("features", "feature_norm", "delay", "vtlp_warps", "pitch_shifts")   # the shipped LSTM's front end
 BASE_PEOPLE = ("obama=../shared/data/obama", "hdtf=../shared/data/hdtf")             # GRID s4, Macron, Lieu stay unseen
-PAGE = [("evaluate", "stages.evaluate.evaluate"), ("report", "stages.report.report")]   # after the benches
+PAGE = ("evaluate", "report")   # after the benches
 
 
 def merged(config: Path, overrides: list[str] = ()) -> dict:
@@ -59,16 +57,18 @@ def merged(config: Path, overrides: list[str] = ()) -> dict:
 
 
 def output_of(params: dict, stage: str) -> Path:
-    return Path(params["delay_sweep"]["plots"] if stage == "delay_sweep" else params[stage]["out"])
+    """The stage's first output (its registry's first key), as ``params`` names it."""
+    section, key = registry.stage(stage).outputs[0].split(".")
+    return Path(params[section][key])
 
 
-def run_stage(stage: str, module: str, params: dict, params_file: Path, skip_existing: bool) -> None:
+def run_stage(stage: str, params: dict, params_file: Path, skip_existing: bool) -> None:
     if skip_existing and output_of(params, stage).exists():
         print(f"== {stage}: {output_of(params, stage)} exists, skipped", flush=True)
         return
     t0 = time.perf_counter()
     print(f"== {stage}", flush=True)
-    subprocess.run([sys.executable, "-m", module, "--params", str(params_file)], cwd=ROOT, check=True)
+    subprocess.run(registry.stage(stage).argv(params_file), cwd=ROOT, check=True)
     print(f"== {stage}: {time.perf_counter() - t0:.0f} s", flush=True)
 
 
@@ -93,10 +93,10 @@ def main() -> None:
     params["train"]["feature_store"] = front_end_store(params)
     params_file = run_dir / "params.yaml"
     params_file.write_text(yaml.safe_dump(params, sort_keys=False))
-    for stage, module in STAGES:
+    for stage in STAGES:
         if stage == "delay_sweep" and a.no_sweep:
             continue
-        run_stage(stage, module, params, params_file, a.skip_existing)
+        run_stage(stage, params, params_file, a.skip_existing)
     if a.no_voices:
         (report / "cross_speaker.json").unlink(missing_ok=True)       # not from this run: not shown
     elif a.skip_existing and (report / "cross_speaker.json").exists():
@@ -130,8 +130,8 @@ def main() -> None:
             subprocess.run(cmd, cwd=ROOT, check=True)
         shutil.copy(work / "quality.json", report / out)
     # the HTML page (evaluate → report), copied in
-    for stage, module in PAGE:
-        run_stage(stage, module, params, params_file, a.skip_existing)
+    for stage in PAGE:
+        run_stage(stage, params, params_file, a.skip_existing)
     page = Path(params["report"]["out"])
     shutil.copy(page / "index.html", report / "index.html")
     shutil.rmtree(report / "videos", ignore_errors=True)
@@ -153,7 +153,7 @@ def voices_models(params: dict, run_dir: Path, base_people: list[str], skip_exis
     pfile.write_text(yaml.safe_dump(tree, sort_keys=False))
     if (tree["train"]["features"], tree["train"]["delay"]) != (params["train"]["features"], params["train"]["delay"]):
         if not (skip_existing and Path(tree["train"]["out"]).exists()):
-            run_stage("train", "stages.train.train", tree, pfile, False)
+            run_stage("train", tree, pfile, False)
         out.append((tree["train"]["out"], tree["train"]["metrics"]))
     if base_people:
         base = run_dir / "base"

@@ -40,10 +40,8 @@ sys.path.insert(0, str(ROOT / "bench"))
 from base_model import run  # noqa: E402  (bench/base_model.py: one stage as a subprocess, its seconds)
 from pipeline.models.base_model import MODEL_FILES, write_manifest  # noqa: E402
 from pipeline.params import as_dict, front_end_store, parse  # noqa: E402
+from stages.registry import PREPROCESSING  # noqa: E402
 
-PREPROCESS = [("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
-              ("frontalize", "stages.frontalize.frontalize"), ("pca", "stages.pca.pca"),
-              ("whisper", "stages.whisper.whisper")]
 PATIENCE = 10            # validations (of 21 steps) without a gain: the whisper LSTM overfits GRID s1 long before 300 epochs
 FRONT_END_KEYS = ("features", "feature_norm", "delay", "vtlp_warps", "pitch_shifts")
 LICENCE = ("GRID audiovisual sentence corpus, speaker 1 (Cooke, Barker, Cunningham & Shao 2006), "
@@ -57,7 +55,7 @@ def base_params(corpus: str, steps: int, run_dir: Path) -> dict:
     for section, values in yaml.safe_load((ROOT / "configs" / "grid_s1.yaml").read_text()).items():
         tree[section].update(values or {})
     tree["data"]["videos"] = corpus
-    for stage, _ in PREPROCESS:
+    for stage in PREPROCESSING:
         tree[stage]["out"] = str(run_dir / "store" / f"{stage}.zarr")
     tree["train"].update({k: shipped["train"][k] for k in FRONT_END_KEYS}, baselines=False, steps=steps, patience=PATIENCE,
                          out=str(run_dir / "base_shipped" / "model"),
@@ -78,12 +76,12 @@ def main() -> None:
     params = base_params(a.corpus, a.steps, a.run_dir.resolve())
     pfile = a.run_dir / "params_base.yaml"
     pfile.write_text(yaml.safe_dump(params, sort_keys=False))
-    for stage, module in PREPROCESS:
+    for stage in PREPROCESSING:
         if Path(params[stage]["out"]).exists():
             print(f"== {stage}: {params[stage]['out']} exists, kept", flush=True)
             continue
-        print(f"== {stage}: {run(module, pfile):.0f} s", flush=True)
-    print(f"== train: {run('stages.train.train', pfile):.0f} s", flush=True)
+        print(f"== {stage}: {run(stage, pfile):.0f} s", flush=True)
+    print(f"== train: {run('train', pfile):.0f} s", flush=True)
     model = Path(params["train"]["out"])
     tmp = a.out.with_name(a.out.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)

@@ -30,7 +30,6 @@ footage whose face is tracked for less than 1.5 segments in all (each file's usa
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import logging
 import shutil
@@ -46,11 +45,10 @@ from pipeline.io.runner import run_main, setup_logging
 from pipeline.io import media
 from pipeline.io.segments import cut_video, segment_bounds, time_split, video_seconds
 from pipeline.params import as_dict, front_end_store, load_params, parse
+from stages import registry
+from stages.registry import PREPROCESSING
 
 log = logging.getLogger("lipsynth.personalize")
-STAGES = (("ingest", "stages.ingest.ingest"), ("landmarks", "stages.landmarks.landmarks"),
-          ("frontalize", "stages.frontalize.frontalize"), ("pca", "stages.pca.pca"),
-          ("whisper", "stages.whisper.whisper"), ("train", "stages.train.train"))
 FEW_VIDEOS = 5             # fewer videos than this are split in time, not by video
 MIN_MOUTH_MOTION = 1.0     # % IOD: an inner-lip opening varying less than this is a mouth that never moves
 
@@ -173,11 +171,12 @@ def run(args) -> dict:
     pfile = work / "params.yaml"
     pfile.write_text(yaml.safe_dump(params, sort_keys=False, allow_unicode=True))
     times, floor = {}, float("nan")
-    stages = STAGES if not args.base else STAGES[:-1]
-    for stage, module in stages:
+    # the person's stores, then (from scratch only: with --base the candidates adapt the base) the LSTM
+    stages = PREPROCESSING if args.base else (*PREPROCESSING, "train")
+    for stage in stages:
         s0 = time.perf_counter()
         log.info("== %s", stage)
-        code = importlib.import_module(module).main(["--params", str(pfile)])
+        code = registry.stage(stage).main(["--params", str(pfile)])
         if code:
             raise LipsynthError(f"personalize: the {stage} stage failed (params {pfile}); see the line above")
         if stage == "landmarks":            # one person, enough tracked face, lips the tracker sees — before the long stages

@@ -20,6 +20,7 @@ from pipeline.params import load_params
 from tests.conftest import ROOT
 from tests.helpers import copy_project, dvc, dvc_status, one_error_line
 from tests.helpers.media import write_wav
+from stages import registry
 
 
 @contextlib.contextmanager
@@ -48,8 +49,7 @@ def project(tmp_path_factory):
     return proj
 
 
-STAGES = ("synthetic_speaker", "ingest", "landmarks", "frontalize", "pca", "phonetic", "whisper", "train", "train_brand", "train_karras",
-          "render_mesh", "delay_sweep", "synthesize", "composite")
+STAGES = tuple(s.name for s in registry.STAGES)
 
 
 def stage_outputs(project) -> dict[str, list[Path]]:
@@ -274,7 +274,7 @@ def test_phonetic_store_and_a_phonetic_model(project, tmp_path):
     params["train"].update(features="mfcc+phonetic", steps=15, baselines=False, out=str(tmp_path / "m"),
                            metrics=str(tmp_path / "m.json"), plots=str(tmp_path / "m.csv"))
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
-    train = [sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")]
+    train = registry.stage("train").argv(tmp_path / "p.yaml")
     r = subprocess.run(train, cwd=project, capture_output=True, text=True, timeout=1200)
     assert "train.feature_store='store/whisper.zarr'" in one_error_line(r) and "set train.feature_store: store/phonetic.zarr" in r.stderr
     params["train"]["feature_store"] = "store/phonetic.zarr"
@@ -317,7 +317,7 @@ def test_whisper_store_and_a_whisper_model(project, tmp_path):
                            baselines=False, out=str(tmp_path / "m"), metrics=str(tmp_path / "m.json"),
                            plots=str(tmp_path / "m.csv"))
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
-    r = subprocess.run([sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")],
+    r = subprocess.run(registry.stage("train").argv(tmp_path / "p.yaml"),
                        cwd=project, capture_output=True, text=True, timeout=1200)
     assert r.returncode == 0, r.stderr[-2000:]
     cfg = json.loads((tmp_path / "m" / "config.json").read_text())
@@ -360,7 +360,7 @@ def test_fine_tuning_from_a_model_folder_trains_only_what_it_is_told(project, tm
     params["train"].update(init_from=str(project / "models" / "lstm"), fine_tune="output", steps=20, baselines=False,
                            out=str(tmp_path / "m"), metrics=str(tmp_path / "m.json"), plots=str(tmp_path / "m.csv"))
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
-    r = subprocess.run([sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")],
+    r = subprocess.run(registry.stage("train").argv(tmp_path / "p.yaml"),
                        cwd=project, capture_output=True, text=True, timeout=1200)
     assert r.returncode == 0, r.stderr[-2000:]
     base = torch.load(project / "models" / "lstm" / "weights.pt", weights_only=True)
@@ -372,7 +372,7 @@ def test_fine_tuning_from_a_model_folder_trains_only_what_it_is_told(project, tm
     assert cfg["params"]["init_from"] == str(project / "models" / "lstm") and cfg["hidden"] == 60
     params["train"].update(features="mfcc", feature_store="store/ingest.zarr", fine_tune="all")
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
-    r = subprocess.run([sys.executable, "-m", "stages.train.train", "--params", str(tmp_path / "p.yaml")],
+    r = subprocess.run(registry.stage("train").argv(tmp_path / "p.yaml"),
                        cwd=project, capture_output=True, text=True, timeout=600)
     assert r.returncode != 0 and "reads 'whisper' features" in r.stderr.strip().splitlines()[-1], r.stderr[-800:]
 
@@ -683,7 +683,7 @@ def test_synthesize_stage_takes_only_corpus_targets(project, tmp_path):
     shutil.copy(project / "data" / "synthetic_speaker" / "speaker_02.mp4", clip)
     params["synthesize"].update(target=str(clip), out=str(tmp_path / "synth.zarr"))
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
-    r = subprocess.run([sys.executable, "-m", "stages.synthesize.synthesize", "--params", str(tmp_path / "p.yaml")],
+    r = subprocess.run(registry.stage("synthesize").argv(tmp_path / "p.yaml"),
                        cwd=project, capture_output=True, text=True, timeout=600)
     assert r.returncode == 2, r.stderr
     assert "not a video of the corpus" in r.stderr and "lipsynth speak" in r.stderr

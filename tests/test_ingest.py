@@ -1,7 +1,6 @@
 """ingest: splitting, timestamps, rates, alignment and bad input."""
 import re
 import subprocess
-import sys
 from fractions import Fraction
 
 import av
@@ -15,6 +14,7 @@ from pipeline.params import as_dict, load_params
 from stages.ingest.ingest import decode_video, layout, list_videos, probe_video, split_videos
 from tests.conftest import ROOT, shared
 from tests.helpers.media import face_frames, make_clip
+from stages.registry import stage
 
 
 @pytest.fixture
@@ -115,7 +115,7 @@ def test_real_video_without_audio_fails_cleanly_through_the_cli(tmp_path):
     params.ingest.out = str(tmp_path / "ingest.zarr")
     params.cluster.n_workers = 1
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(as_dict(params)))
-    r = subprocess.run([sys.executable, "-m", "stages.ingest.ingest", "--params", str(tmp_path / "p.yaml")],
+    r = subprocess.run(stage("ingest").argv(tmp_path / "p.yaml"),
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2
     errors = [line for line in r.stderr.splitlines() if line.startswith("lipsynth: error:")]

@@ -1,6 +1,5 @@
 """params.yaml is read once into typed sections; mistakes stop with one line naming the key."""
 import subprocess
-import sys
 
 import pytest
 import yaml
@@ -8,6 +7,7 @@ import yaml
 from pipeline.errors import ParameterError
 from pipeline.params import Params, as_dict, load_params, parse
 from tests.conftest import ROOT
+from stages.registry import stage
 
 
 def shipped():
@@ -65,7 +65,7 @@ def test_a_stage_refuses_a_bad_params_file_with_one_line(tmp_path):
     tree = shipped()
     tree["landmarks"]["detect_evry"] = 10
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(tree))
-    r = subprocess.run([sys.executable, "-m", "stages.landmarks.landmarks", "--params", str(tmp_path / "p.yaml")],
+    r = subprocess.run(stage("landmarks").argv(tmp_path / "p.yaml"),
                        cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [f"lipsynth: error: {tmp_path / 'p.yaml'}: unknown key landmarks.detect_evry "

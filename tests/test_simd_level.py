@@ -6,6 +6,7 @@ import sys
 
 from pipeline.simd_level import AVX2_CAP, cap_for, cpu_flags, pin_avx2, x264_params
 from tests.conftest import ROOT
+from stages.registry import stage
 
 SKX = {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
 
@@ -65,7 +66,7 @@ def test_a_stage_module_pins_before_numpy_loads():
              "builtins.__import__ = spy\n"
              "import {module}\n"
              "print(seen[:2])\n")
-    for module in ("stages.ingest.ingest", "stages.train.train", "lipsynth.cli"):
+    for module in (stage("ingest").module, stage("train").module, "lipsynth.cli"):
         r = subprocess.run([sys.executable, "-c", probe.format(module=module)], cwd=ROOT, capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
         assert ast.literal_eval(r.stdout.strip())[0] == "pipeline", (module, r.stdout)

@@ -16,6 +16,7 @@ from scipy.ndimage import uniform_filter1d
 
 from stages.synthetic_speaker import articulation, face_template, language, render
 from stages.synthetic_speaker import generate as gen
+from stages.registry import stage
 
 ROOT = Path(__file__).resolve().parents[1]
 WIDTH, HEIGHT, FPS, RATE = 360, 288, 25, 16000
@@ -44,7 +45,7 @@ def corpus(tmp_path_factory):
     (base / "first").mkdir()
     (base / "first" / "stale.txt").write_text("from an older run")
     env = dict(os.environ, LIPSYNTH_PARAMS=str(params))
-    command = [sys.executable, "-m", "stages.synthetic_speaker.generate"]
+    command = [sys.executable, "-m", stage("synthetic_speaker").module]
     subprocess.run(command, cwd=ROOT, env=env, check=True, capture_output=True)
     subprocess.run(command + ["--out", str(base / "second")], cwd=ROOT, env=env, check=True,
                    capture_output=True)
