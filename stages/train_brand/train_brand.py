@@ -130,15 +130,7 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
                if b.features == "whisper" else None)
     videos, pc = load_videos(ingest_path, landmarks_path, frontalize_path, pca_path, b.rate, b.features, encoder)
     basis, attrs = pc["basis"], pc["attrs"]
-    train = [v for v in videos if v["split"] == "train"]
-    val = [v for v in videos if v["split"] == "val"]
-    if b.train_seconds:
-        train = [train[i] for i in seeded_subset([len(v["samples"]) / 16000 for v in train], b.train_seconds, b.seed)]
-        log.info("brand.train_seconds=%g: %d of the training videos (%.1f s), seeded", b.train_seconds, len(train),
-                 sum(len(v["samples"]) for v in train) / 16000)
-    if not train or not val:
-        raise LipsynthError(f"{pca_path}: Voice Puppetry needs training and validation videos "
-                            f"({len(train)} and {len(val)})")
+    train, val = split_videos(videos, b, pca_path)
     clock["features_s"] = time.perf_counter() - clock["start"]
     projection = voice_pca(train, b.voice_dims) if b.features == "whisper" else None
     if projection is not None:
@@ -183,28 +175,9 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
             puppet.update(vocal_projection_mean=projection["vocal_projection_mean"],
                           vocal_projection=projection["vocal_projection"])
         curves[prior], puppets[prior] = history, puppet
-        tr_obs = [by_name[v["name"]] for v in train]
-        va_obs = [by_name[v["name"]] for v in val]
-        on_train = paper_measures(puppet, hmm, train, tr_obs, center, scale, fpca)
-        on_test = paper_measures(puppet, hmm, val, va_obs, center, scale, fpca)
-        metrics[prior] = dict(
-            states=int(hmm.n_components), transitions=int((hmm.transmat_ > 0).sum()),
-            iterations=len(history), log_likelihood_per_frame=history[-1]["log_likelihood"],
-            transition_perplexity=voice_puppet.transition_perplexity(hmm.transmat_),
-            entropy_rate_nats=on_test["entropy_rate_nats"],
-            eq7={"state_sequence": {"train": on_train["eq7_state_sequence"], "test": on_test["eq7_state_sequence"]},
-                 "voice": {"train": on_train["eq7_voice"], "test": on_test["eq7_voice"]}},
-            val=mouth_scores(puppet, val, basis, attrs["iod_px"]))
-        log.info("%s HMM: %d states, %d transitions, perplexity %.2f, entropy rate %.3f nats/frame; Eq. 7 test "
-                 "%.3f (face states) / %.3f (voice); validation mouth error %.3f px (%.2f%% IOD), opening corr %.2f",
-                 prior, metrics[prior]["states"], metrics[prior]["transitions"],
-                 metrics[prior]["transition_perplexity"], metrics[prior]["entropy_rate_nats"],
-                 on_test["eq7_state_sequence"], on_test["eq7_voice"], metrics[prior]["val"]["mouth_error_px"],
-                 metrics[prior]["val"]["mouth_error_iod_pct"], metrics[prior]["val"]["median_opening_corr"])
-    mean_shape = np.nanmean(np.concatenate([v["frame_coeffs"][v["frame_ok"]] for v in train]), 0)
-    metrics["baseline_mean_shape"] = mouth_metrics.evaluate_videos(
-        [np.tile(mean_shape, (len(v["frame_coeffs"]), 1)) for v in val], [v["frame_coeffs"] for v in val],
-        [v["frame_ok"] for v in val], [v["fps"] for v in val], basis, attrs["iod_px"])
+        metrics[prior] = prior_metrics(prior, hmm, history, puppet, (train, val), by_name, (center, scale), fpca,
+                                       basis, attrs["iod_px"])
+    metrics["baseline_mean_shape"] = mean_shape_scores(train, val, basis, attrs["iod_px"])
     metrics["ratio_to_mean_shape"] = (metrics["entropic"]["val"]["mouth_error_px"]
                                       / metrics["baseline_mean_shape"]["mouth_error_px"])
     log.info("mean shape %.3f px; Voice Puppetry / mean shape = %.2f",
@@ -218,6 +191,56 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
     clock["total_s"] = time.perf_counter() - clock.pop("start")
     write_timing("train_brand", dict(clock, training_frames=len(X)))
     return metrics
+
+
+def split_videos(videos: list[dict], b, pca_path: str) -> tuple[list[dict], list[dict]]:
+    """The training videos (all, or a seeded subset of about ``brand.train_seconds``) and the validation videos;
+    refused unless both are there."""
+    train = [v for v in videos if v["split"] == "train"]
+    val = [v for v in videos if v["split"] == "val"]
+    if b.train_seconds:
+        train = [train[i] for i in seeded_subset([len(v["samples"]) / 16000 for v in train], b.train_seconds, b.seed)]
+        log.info("brand.train_seconds=%g: %d of the training videos (%.1f s), seeded", b.train_seconds, len(train),
+                 sum(len(v["samples"]) for v in train) / 16000)
+    if not train or not val:
+        raise LipsynthError(f"{pca_path}: Voice Puppetry needs training and validation videos "
+                            f"({len(train)} and {len(val)})")
+    return train, val
+
+
+def prior_metrics(prior: str, hmm, history: list[dict], puppet: dict, split: tuple[list, list], by_name: dict,
+                  standardise: tuple, fpca: dict, basis: dict, iod_px: float) -> dict:
+    """One HMM's metrics (``prior``: entropic or ml), logged in one line: size, perplexity, the paper's Eq. 7
+    and entropy rate on the training and the validation videos (``split``; observations ``by_name``,
+    standardised by ``standardise`` = (center, scale)), and the shared predict path's validation scores."""
+    train, val = split
+    center, scale = standardise
+    tr_obs = [by_name[v["name"]] for v in train]
+    va_obs = [by_name[v["name"]] for v in val]
+    on_train = paper_measures(puppet, hmm, train, tr_obs, center, scale, fpca)
+    on_test = paper_measures(puppet, hmm, val, va_obs, center, scale, fpca)
+    m = dict(
+        states=int(hmm.n_components), transitions=int((hmm.transmat_ > 0).sum()),
+        iterations=len(history), log_likelihood_per_frame=history[-1]["log_likelihood"],
+        transition_perplexity=voice_puppet.transition_perplexity(hmm.transmat_),
+        entropy_rate_nats=on_test["entropy_rate_nats"],
+        eq7={"state_sequence": {"train": on_train["eq7_state_sequence"], "test": on_test["eq7_state_sequence"]},
+             "voice": {"train": on_train["eq7_voice"], "test": on_test["eq7_voice"]}},
+        val=mouth_scores(puppet, val, basis, iod_px))
+    log.info("%s HMM: %d states, %d transitions, perplexity %.2f, entropy rate %.3f nats/frame; Eq. 7 test "
+             "%.3f (face states) / %.3f (voice); validation mouth error %.3f px (%.2f%% IOD), opening corr %.2f",
+             prior, m["states"], m["transitions"], m["transition_perplexity"], m["entropy_rate_nats"],
+             on_test["eq7_state_sequence"], on_test["eq7_voice"], m["val"]["mouth_error_px"],
+             m["val"]["mouth_error_iod_pct"], m["val"]["median_opening_corr"])
+    return m
+
+
+def mean_shape_scores(train: list[dict], val: list[dict], basis: dict, iod_px: float) -> dict:
+    """The baseline: the training videos' mean mouth shape on every validation frame, scored like the models."""
+    mean_shape = np.nanmean(np.concatenate([v["frame_coeffs"][v["frame_ok"]] for v in train]), 0)
+    return mouth_metrics.evaluate_videos(
+        [np.tile(mean_shape, (len(v["frame_coeffs"]), 1)) for v in val], [v["frame_coeffs"] for v in val],
+        [v["frame_ok"] for v in val], [v["fps"] for v in val], basis, iod_px)
 
 
 def voice_pca(train: list[dict], dims: int) -> dict:
