@@ -88,15 +88,7 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
     budget = (budget or Budget(p.steps, p.val_every, p.patience, p.min_delta)).check("train")
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    n_in, n_out = train_seqs[0][0].shape[-1], train_seqs[0][1].shape[1]
-    if init is None:
-        model = DelayedLSTM(n_in, p.hidden, n_out, p.layers).to(device)
-        trained = list(model.parameters())
-    else:
-        model = DelayedLSTM(n_in, init["hidden"], n_out, init["layers"], init.get("skip", False))
-        model.load_state_dict(init["state"])
-        model = model.to(device)
-        trained = list(model.out.parameters()) if p.fine_tune == "output" else list(model.parameters())
+    model, trained = initial_model(train_seqs[0][0].shape[-1], train_seqs[0][1].shape[1], p, device, init)
     opt = adam(trained, p.lr)
     anchor = float(init.get("anchor", 0.0)) if init else 0.0
     start = [w.detach().clone() for w in trained] if anchor else []
@@ -142,15 +134,34 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
             if stop or step >= budget.steps:
                 break
     bar.close()
+    kept = keep_best(model, stopper, budget, step, stop, f"LSTM {desc} (d={delay})")
+    model.eval()
+    return model, history, kept
+
+
+def initial_model(n_in: int, n_out: int, p: Train, device, init: dict | None) -> tuple[DelayedLSTM, list]:
+    """The network (random weights, or ``init``'s) on ``device`` and the weights to train (all, or the
+    read-out only when fine-tuning with ``p.fine_tune == "output"``)."""
+    if init is None:
+        model = DelayedLSTM(n_in, p.hidden, n_out, p.layers).to(device)
+        return model, list(model.parameters())
+    model = DelayedLSTM(n_in, init["hidden"], n_out, init["layers"], init.get("skip", False))
+    model.load_state_dict(init["state"])
+    model = model.to(device)
+    return model, list(model.out.parameters()) if p.fine_tune == "output" else list(model.parameters())
+
+
+def keep_best(model: DelayedLSTM, stopper: EarlyStopping, budget: Budget, step: int, stop: bool, name: str) -> int:
+    """With early stopping on, load the best validation point's weights into ``model``; returns the step
+    whose weights are kept (``step``, the last, otherwise)."""
     kept = step
     if budget.patience is not None and stopper.best_state is not None and stopper.best_step != step:
         model.load_state_dict(stopper.best_state)
         kept = stopper.best_step
     if stop:
-        log.info("LSTM %s (d=%d): early stop at step %d of %d (no gain for %d validations); keeping step %d "
-                 "(val loss %.4f)", desc, delay, step, budget.steps, budget.patience, kept, stopper.best_value)
-    model.eval()
-    return model, history, kept
+        log.info("%s: early stop at step %d of %d (no gain for %d validations); keeping step %d "
+                 "(val loss %.4f)", name, step, budget.steps, budget.patience, kept, stopper.best_value)
+    return kept
 
 
 def evaluate_loss(model: DelayedLSTM, seqs: list, delay: int, device) -> float:
