@@ -100,3 +100,21 @@ def test_lip_sync_verdict_says_when_lip_sync_was_not_made(caplog):
     msg = str(exc.value)
     assert msg.startswith("t.mp4: lip sync not made on 100%") and "3D fit" in msg and "o.mp4 was written" in msg
     assert lip_sync_verdict(None, s, "t.mp4", "o.mp4") is None        # self-check off: nothing to say
+
+
+@pytest.mark.real
+def test_a_video_corrupt_mid_file_is_one_line_without_dask_shutdown_noise(tmp_path):
+    """20 kB overwritten in the middle of a target: the ingest task fails on a worker while the other
+    warms up; the run ends with the one error line, not the cluster's shutdown warnings above it."""
+    target = tmp_path / "damaged.mp4"
+    data = bytearray(shared("hdtf", "WDA_KatieHill_000.mp4").read_bytes())
+    data[len(data) // 2:len(data) // 2 + 20000] = np.random.default_rng(0).integers(0, 256, 20000, np.uint8).tobytes()
+    target.write_bytes(bytes(data))
+    out = tmp_path / "o.mp4"
+    r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "speak", "--audio", shared("hdtf", "RD_Radio31_000.wav"),
+                        "--target", target, "--out", out, "--model", ROOT / "models" / "base", "--cache", tmp_path / "c"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    line = one_error_line(r)
+    assert str(target) in line and "corrupt" in line
+    assert not [l for l in r.stderr.splitlines() if "distributed" in l or "WARNING" in l], r.stderr
+    assert not out.exists()

@@ -92,14 +92,46 @@ def client_for(cluster):
     log.info("starting LocalCluster with %d worker processes", n)
     # dashboard_address ":0": the scheduler's HTTP server (health routes; no dashboard without bokeh)
     # takes a free port, so two clusters at once (two test processes, two users) never fight over 8787
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      memory_limit=cluster.memory_limit,
-                      dashboard_address=":0", silence_logs=logging.WARNING) as lc, Client(lc) as c:
+    with contextlib.ExitStack() as stack:
+        stack.callback(_restore_levels, _distributed_levels())    # last: after the cluster has closed
+        lc = stack.enter_context(LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                              memory_limit=cluster.memory_limit,
+                                              dashboard_address=":0", silence_logs=logging.WARNING))
+        c = stack.enter_context(Client(lc))
         _OWN_CLUSTERS.add(lc.scheduler_address)
         try:
             yield c
         finally:
             _OWN_CLUSTERS.discard(lc.scheduler_address)
+            _quiet_shutdown(c)
+
+
+def _distributed_levels() -> dict:
+    """The levels of this process's ``distributed.*`` loggers, by name."""
+    names = [n for n in logging.root.manager.loggerDict if n == "distributed" or n.startswith("distributed.")]
+    return {n: logging.getLogger(n).level for n in names}
+
+
+def _restore_levels(levels: dict) -> None:
+    for name, level in levels.items():
+        logging.getLogger(name).setLevel(level)
+
+
+def _silence_distributed() -> None:
+    """Every ``distributed.*`` logger of this process at ERROR (run on the workers before a shutdown)."""
+    for name in _distributed_levels():
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+def _quiet_shutdown(client) -> None:
+    """Closing the LocalCluster says nothing a user can act on — a warm-up task cancelled, a busy
+    worker killed after 4 s — and would print it above the error that stopped the run: the workers'
+    and this process's ``distributed`` loggers go to ERROR for the shutdown."""
+    try:
+        client.run(_silence_distributed)
+    except Exception:                   # a worker already gone: its process prints nothing more
+        pass
+    _silence_distributed()
 
 
 def run_tasks(client, fn, items: list, desc: str, unit: str = "task", weights: list | None = None) -> list:
