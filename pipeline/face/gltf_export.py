@@ -66,10 +66,23 @@ def morph_animation(rest: np.ndarray, frames: np.ndarray, triangles: np.ndarray,
 
     Parameters
     ----------
-    rest : (M, 3) rest positions (m, glTF axes); frames : (T, M, 3) positions per frame (m).
-    triangles : (F, 3) indices into the M vertices (for the normals).
-    max_targets : the most morph targets K; tol_mm : the fewest K whose worst vertex error is below this.
-    fit_frames : the basis is fitted on at most this many evenly spaced frames (all frames are projected).
+    rest : ndarray
+        (M, 3) rest positions (m, glTF axes).
+    frames : ndarray
+        (T, M, 3) positions per frame (m).
+    triangles : ndarray
+        (F, 3) indices into the M vertices (for the normals).
+    max_targets : int
+        The most morph targets K.
+    tol_mm : float
+        The fewest K whose worst vertex error is below this (mm) is kept.
+    fit_frames : int
+        The basis is fitted on at most this many evenly spaced frames (all frames are projected).
+
+    Returns
+    -------
+    MorphAnimation
+        Deltas, normal deltas, weights (T, K) and the worst vertex error (mm).
     """
     T, M, _ = frames.shape
     d = (frames - rest[None]).reshape(T, 3 * M)
@@ -154,9 +167,25 @@ def build_glb(mesh, motion, texture: np.ndarray, fps: float, audio_name: str | N
 
     Parameters
     ----------
-    mesh : ``HeadMesh`` at rest (mm); motion : ``HeadMotion`` — skin (T, N, 3), upper_teeth (T, Nu, 3),
-    lower_teeth (T, Nl, 3) mm; texture : (H, W, 3) uint8 RGB head texture; fps : frames per second.
-    audio_name : the audio file beside it (recorded in the scene's extras).
+    mesh : HeadMesh
+        The head at rest (mm).
+    motion : HeadMotion
+        skin (T, N, 3), upper_teeth (T, Nu, 3), lower_teeth (T, Nl, 3), mm.
+    texture : ndarray
+        (H, W, 3) uint8 RGB head texture.
+    fps : float
+        Frames per second of the animation.
+    audio_name : str, optional
+        The audio file beside it (recorded in the scene's extras).
+    tol_mm : float
+        The worst vertex error (mm) the morph targets may leave (``morph_animation``).
+
+    Returns
+    -------
+    raw : bytes
+        The ``.glb`` file.
+    figures : dict
+        ``morph_targets``, ``max_error_mm``, ``frames``, ``bytes``.
     """
     import cv2
     import pygltflib as g

@@ -31,8 +31,19 @@ def write_viewer_assets(folder, glb, width: int = 640, height: int = 480, rel: s
 
     Parameters
     ----------
-    folder : where the assets go (created); glb : the ``.glb`` (its ``.wav`` beside it, when present, is copied).
-    width, height : canvas size (px). rel : the folder's path relative to the page ("" when the page is in it).
+    folder : str or Path
+        Where the assets go (created).
+    glb : str or Path
+        The ``.glb`` (its ``.wav`` beside it, when present, is copied).
+    width, height : int
+        Canvas size (px).
+    rel : str
+        The folder's path relative to the page ("" when the page is in it).
+
+    Returns
+    -------
+    str
+        The HTML to put in the page.
     """
     glb = Path(glb)
     if not glb.is_file():
