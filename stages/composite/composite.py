@@ -212,6 +212,23 @@ class OrderedOutput:
             self.bar.update()
 
 
+def collect_frame(i: int, done: tuple, timing: dict, checks: list[dict],
+                  p: Composite) -> tuple[np.ndarray, np.ndarray, bool]:
+    """``composite_one``'s result ``done`` for output frame ``i``: its thread seconds are added to ``timing``, its
+    self-check (if any) appended to ``checks``; returns the target frame, the result and whether it passes."""
+    frame, result, t, check = done
+    for k, v in t.items():
+        timing[k] = timing.get(k, 0.0) + v
+    ok = True
+    if check is not None:
+        checks.append(check)
+        ok = self_check.passes(check, p.check_max_error, p.check_max_sharpness, p.check_max_face_error)
+        if not ok:
+            log.debug("self-check: output frame %d fails (mouth error %.3f × IOD, nose and chin %.3f × IOD, "
+                      "sharpness × %.1f)", i, check["error"], check["face_error"], check["sharpness"])
+    return frame, result, ok
+
+
 def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, video_path: str, audio_path: str) -> dict:
     """Composite the textures of ``synth_path`` into the target video and mux ``audio_path``.
 
@@ -256,16 +273,7 @@ def run(params: Params, synth_path: str, out_video: str, frontalize_path: str, v
 
         def finish_oldest() -> None:
             i, texture, fut = pending.popleft()
-            frame, result, t, check = fut.result()
-            for k, v in t.items():
-                timing[k] = timing.get(k, 0.0) + v
-            ok = True
-            if check is not None:
-                checks.append(check)
-                ok = self_check.passes(check, p.check_max_error, p.check_max_sharpness, p.check_max_face_error)
-                if not ok:
-                    log.debug("self-check: output frame %d fails (mouth error %.3f × IOD, nose and chin %.3f × IOD, "
-                              "sharpness × %.1f)", i, check["error"], check["face_error"], check["sharpness"])
+            frame, result, ok = collect_frame(i, fut.result(), timing, checks, p)
             output.add(i, frame, result, texture, ok)
 
         for i in range(len(mapping)):

@@ -61,6 +61,17 @@ def batch_inputs(videos, rows: np.ndarray, shifts: np.ndarray):
     return np.stack(x)[:, None], np.stack(y)
 
 
+def minibatch(train: list[dict], pairs: np.ndarray, config: FitConfig, rng: np.random.Generator):
+    """One minibatch of temporal ``pairs`` (P, 2) (video, first frame): its rows (2P, 2) (video, frame), the
+    autocorrelation windows (2P, 1, 64, 32) on ``config.device`` (channels last), time-shifted with ``rng``
+    when ``config.time_shift``, and their shifted targets (2P, D)."""
+    rows = np.repeat(pairs, 2, 0)
+    rows[1::2, 1] += 1                                      # the pair's second frame
+    shifts = objective.pair_shifts(len(pairs), rng) if config.time_shift else np.zeros(len(rows))
+    x, y = batch_inputs(train, rows, shifts)
+    return rows, torch.as_tensor(x, device=config.device).contiguous(memory_format=torch.channels_last), y
+
+
 def fit(videos: list[dict], config: FitConfig, progress: bool = True, on_validation=None, log_plan=None):
     """Train on the ``train`` videos for ``config.steps`` optimizer steps; returns (network,
     emotions (N, E) — one per frame of the training videos, in their order — and the history: per
@@ -100,14 +111,10 @@ def fit(videos: list[dict], config: FitConfig, progress: bool = True, on_validat
             lr, beta1 = objective.schedule(step / per_epoch, total_epochs, config.lr)
             for g in opt.param_groups:
                 g["lr"], g["betas"] = lr, (beta1, g["betas"][1])
-            p = pairs[order[b * (config.batch // 2):(b + 1) * (config.batch // 2)]]
-            rows = np.repeat(p, 2, 0)
-            rows[1::2, 1] += 1                                      # the pair's second frame
-            shifts = objective.pair_shifts(len(p), rng) if config.time_shift else np.zeros(len(rows))
-            x, y = batch_inputs(train, rows, shifts)
+            half = config.batch // 2
+            rows, x, y = minibatch(train, pairs[order[b * half:(b + 1) * half]], config, rng)
             idx = torch.as_tensor(offsets[rows[:, 0]] + rows[:, 1])
             e = emotions[idx] if config.emotions else torch.zeros(len(rows), config.emotion_dim)
-            x = torch.as_tensor(x, device=config.device).contiguous(memory_format=torch.channels_last)
             out = net(x, e.to(config.device), noise=True)
             loss, parts = loss_fn(torch.as_tensor(y, dtype=torch.float32, device=config.device), out, e)
             opt.zero_grad()

@@ -74,6 +74,51 @@ def load_pca(pca_path: str) -> tuple[dict, dict, dict]:
     return basis, dict(pca.attrs), per
 
 
+def split_videos(videos: list[dict], frontalize_path: str) -> tuple[list[dict], list[dict]]:
+    """The training and the validation videos; refused unless both are there."""
+    train_all = [v for v in videos if v["split"] == "train"]
+    val = [v for v in videos if v["split"] == "val"]
+    if not train_all or not val:
+        raise LipsynthError(f"{frontalize_path}: the Karras network needs training and validation videos "
+                            f"({len(train_all)} and {len(val)})")
+    return train_all, val
+
+
+def validation_curve(xv: np.ndarray, yv: np.ndarray, device):
+    """``fit``'s ``on_validation``: the position loss (px²) and the mean point error (px) of the network with
+    the mean learned emotion on the fixed validation windows ``xv`` against their targets ``yv``."""
+    xv_t = torch.as_tensor(xv, device=device)
+
+    def on_validation(step, net, emo):
+        e = emo.mean(0, keepdim=True).to(device)
+        out = np.concatenate([net(xv_t[i:i + 512], e.expand(len(xv_t[i:i + 512]), -1)).cpu().numpy()
+                              for i in range(0, len(xv_t), 512)])
+        err = np.linalg.norm((out - yv).reshape(len(yv), -1, 2), axis=-1).mean()
+        log.debug("step %d: validation position %.4f px², error %.3f px", step, ((out - yv) ** 2).mean(), err)
+        return dict(val_position=float(((out - yv) ** 2).mean()), val_error_px=float(err))
+    return on_validation
+
+
+def mine_emotions(net, database: np.ndarray, sources: list, val: list[dict], k) -> dict:
+    """The emotion candidates (§5.1, ``emotions.mine``); with ``karras.emotions`` off (the ablation: the network
+    never saw an emotion) one zero vector, its input in training."""
+    if k.emotions:
+        return emotion_mining.mine(net, database, sources, val, UPPER, LOWER, k.mine_candidates, k.mine_probes,
+                                   k.mine_playback, k.mine_playback_clips, k.emotion_clusters, k.seed)
+    return dict(candidates=np.zeros((1, k.emotion_dim), np.float32),
+                info=[dict(index=0, database_row=-1, video="", frame=-1, cluster_size=0, videos={})], steps={})
+
+
+def mean_shape_scores(train: list[dict], val: list[dict], pca_frames: dict, basis: dict, iod_px: float) -> dict:
+    """The baseline: the training videos' mean mouth PCA coefficients on every validation frame, scored like
+    the network."""
+    mean_shape = np.nanmean(np.concatenate([pca_frames[v["name"]][0][pca_frames[v["name"]][1]] for v in train]), 0)
+    return mouth_metrics.evaluate_videos(
+        [np.tile(mean_shape, (len(pca_frames[v["name"]][0]), 1)) for v in val],
+        [pca_frames[v["name"]][0] for v in val], [pca_frames[v["name"]][1] for v in val],
+        [v["fps"] for v in val], basis, iod_px)
+
+
 def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: str, pca_path: str,
         with_speaker: bool = True) -> dict:
     k = params.karras
@@ -85,28 +130,15 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
     basis, attrs, pca_frames = load_pca(pca_path)
     for v in videos:
         v["padded"] = padded_track(v["samples"], v["name"])
-    train_all = [v for v in videos if v["split"] == "train"]
-    val = [v for v in videos if v["split"] == "val"]
-    if not train_all or not val:
-        raise LipsynthError(f"{frontalize_path}: the Karras network needs training and validation videos "
-                            f"({len(train_all)} and {len(val)})")
+    train_all, val = split_videos(videos, frontalize_path)
     train = choose_training_videos(train_all, k.train_seconds, k.seed)
     seconds = sum(len(v["samples"]) for v in train) / 16000
     xv, yv = validation_sample(val, k.val_frames, k.seed)
-    xv_t = torch.as_tensor(xv, device=device)
     log.info("Karras et al.: %d of %d training videos (%.1f min of speech, %d frames), %d validation videos "
              "(%d sampled frames for the curve), %d outputs (%d face points), %d steps on %s",
              len(train), len(train_all), seconds / 60, sum(len(v["targets"]) for v in train), len(val), len(yv),
              2 * len(FACE_POINTS), len(FACE_POINTS), k.steps, device)
-
-    def on_validation(step, net, emo):
-        e = emo.mean(0, keepdim=True).to(device)
-        out = np.concatenate([net(xv_t[i:i + 512], e.expand(len(xv_t[i:i + 512]), -1)).cpu().numpy()
-                              for i in range(0, len(xv_t), 512)])
-        err = np.linalg.norm((out - yv).reshape(len(yv), -1, 2), axis=-1).mean()
-        log.debug("step %d: validation position %.4f px², error %.3f px", step, ((out - yv) ** 2).mean(), err)
-        return dict(val_position=float(((out - yv) ** 2).mean()), val_error_px=float(err))
-
+    on_validation = validation_curve(xv, yv, device)
     config = FitConfig(steps=k.steps, batch=k.batch, lr=k.lr, emotion_dim=k.emotion_dim,
                        emotion_sigma=k.emotion_sigma, motion=k.motion, emotions=k.emotions,
                        time_shift=k.time_shift, seed=k.seed, device=device, val_every=k.val_every,
@@ -117,12 +149,7 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
     net = net.cpu().eval()
     sources = [(v["name"], i) for v in train for i in range(len(v["targets"]))]
     t0 = time.perf_counter()
-    if k.emotions:
-        mined = emotion_mining.mine(net, database, sources, val, UPPER, LOWER, k.mine_candidates, k.mine_probes,
-                                    k.mine_playback, k.mine_playback_clips, k.emotion_clusters, k.seed)
-    else:                                   # ablation: the network never saw an emotion — zero is its input
-        mined = dict(candidates=np.zeros((1, k.emotion_dim), np.float32),
-                     info=[dict(index=0, database_row=-1, video="", frame=-1, cluster_size=0, videos={})], steps={})
+    mined = mine_emotions(net, database, sources, val, k)
     clock["mine_s"] = time.perf_counter() - t0
     ys = np.concatenate([v["targets"][v["ok"]] for v in train])
     arrays = dict(pca_mean=basis["mean"], pca_components=basis["components"], lip_index=np.asarray(LIP_INDEX),
@@ -141,11 +168,7 @@ def run(params: Params, ingest_path: str, landmarks_path: str, frontalize_path: 
         if with_speaker:
             speaker = export_speaker(tmp, ingest_path, landmarks_path, frontalize_path,
                                      params.train.bank_frames, params.train.identity_frames)
-    mean_shape = np.nanmean(np.concatenate([pca_frames[v["name"]][0][pca_frames[v["name"]][1]] for v in train]), 0)
-    baseline = mouth_metrics.evaluate_videos(
-        [np.tile(mean_shape, (len(pca_frames[v["name"]][0]), 1)) for v in val],
-        [pca_frames[v["name"]][0] for v in val], [pca_frames[v["name"]][1] for v in val],
-        [v["fps"] for v in val], basis, attrs["iod_px"])
+    baseline = mean_shape_scores(train, val, pca_frames, basis, attrs["iod_px"])
     metrics = dict(model="karras", training_videos=len(train), training_seconds=seconds,
                    training_frames=int(sum(len(v["targets"]) for v in train)), steps=k.steps,
                    steps_run=history[-1]["step"], step_kept=history[-1].get("kept_step", history[-1]["step"]),
