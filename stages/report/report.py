@@ -93,7 +93,19 @@ def build_html(ctx: dict) -> str:
     e = html.escape
     parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{e(ctx['title'])}</title>"
              f"<style>{CSS}</style></head><body>", f"<h1>{e(ctx['title'])}</h1>"]
-    parts.append("<h2>Audio → mouth shape: model families</h2>")
+    parts += model_section(ctx) + training_section(ctx) + video_section(ctx) + bench_sections(ctx)
+    parts.append("<h2>Synthesis speed</h2><p>Measured on every run, so not on this page (its bytes are the same on "
+                 "every run and machine, and DVC's cache can trust them): the last run's thread time per frame and "
+                 "phase is in <code>logs/synthesize.timing.json</code> and <code>logs/composite.timing.json</code>; "
+                 "<code>bench/synthesize.py</code> measures it properly.</p>")
+    parts.append(f"<h2>Parameters</h2><pre id=\"params\">{e(ctx.get('params_text', ''))}</pre>")
+    parts.append("</body></html>\n")
+    return "\n".join(parts)
+
+
+def model_section(ctx: dict) -> list[str]:
+    """The model families' table: validation mouth error of each, with the baselines."""
+    parts = ["<h2>Audio → mouth shape: model families</h2>"]
     rows = model_rows(ctx.get("train"))
     mean_px = num(((ctx.get("train") or {}).get("baseline_mean_shape") or {}).get("mouth_error_px"))
     rows[1:1] = brand_rows(ctx.get("brand"), mean_px) + karras_rows(ctx.get("karras"), mean_px)
@@ -104,7 +116,13 @@ def build_html(ctx: dict) -> str:
                             "within one frame", "clips"], rows, "models"))
     else:
         parts.append("<p>No training metrics (run <code>dvc repro train</code>).</p>")
-    parts.append("<h2>Training</h2>")
+    return parts
+
+
+def training_section(ctx: dict) -> list[str]:
+    """Loss curves, the delay sweep, and the Voice Puppetry and Karras models' own figures."""
+    e = html.escape
+    parts = ["<h2>Training</h2>"]
     if ctx.get("loss_rows"):
         parts.append(f"<h3>Loss curves</h3><div class=\"plot\" id=\"plot-loss\">{loss_plot(ctx['loss_rows'])}</div>")
     if ctx.get("sweep_rows"):
@@ -135,7 +153,13 @@ def build_html(ctx: dict) -> str:
                      f"{k.get('emotion_candidates')} candidates (<code>lipsynth emotions</code>).</p>")
         if ctx.get("karras_rows"):
             parts.append(f"<div class=\"plot\" id=\"plot-karras\">{karras_plot(ctx['karras_rows'])}</div>")
-    parts.append("<h2>Audio → video: the synthesized video against the original (Video J)</h2>")
+    return parts
+
+
+def video_section(ctx: dict) -> list[str]:
+    """The synthesized video against the original (Video J): the evaluate table and the shown clips."""
+    e = html.escape
+    parts = ["<h2>Audio → video: the synthesized video against the original (Video J)</h2>"]
     ev = ctx.get("evaluate")
     if ev:
         parts.append(f"<p>{e(str(ev.get('setting', '')))}; candidates "
@@ -154,6 +178,12 @@ def build_html(ctx: dict) -> str:
             parts.append(f"<video controls muted preload=\"auto\" src=\"{e(src)}\" data-duration=\"{duration:.3f}\">"
                          "</video><p class=\"meta\">target | result | synthesized texture</p>")
         parts.append("</div>")
+    return parts
+
+
+def bench_sections(ctx: dict) -> list[str]:
+    """With ``report.benches``: the DVC path beside the ``lipsynth speak`` path, and other people's voices."""
+    parts = []
     if any((ctx.get("paths") or {}).values()):
         parts.append("<h2>The DVC path and the <code>lipsynth speak</code> path</h2><p>The same validation clips "
                      "synthesized (no re-timing) through the stages and through <code>lipsynth speak</code> on the clip "
@@ -169,13 +199,7 @@ def build_html(ctx: dict) -> str:
         parts.append(table(["model (front end)", "person", "clips", "corr lag 0", "corr best lag", "within one frame",
                             "source offset (frames)", "corr at source offset"], voice_rows(ctx["voices"]), "voices"))
         parts.append(f"<div class=\"plot\" id=\"plot-voices\">{voice_plot(ctx['voices'])}</div>")
-    parts.append("<h2>Synthesis speed</h2><p>Measured on every run, so not on this page (its bytes are the same on "
-                 "every run and machine, and DVC's cache can trust them): the last run's thread time per frame and "
-                 "phase is in <code>logs/synthesize.timing.json</code> and <code>logs/composite.timing.json</code>; "
-                 "<code>bench/synthesize.py</code> measures it properly.</p>")
-    parts.append(f"<h2>Parameters</h2><pre id=\"params\">{e(ctx.get('params_text', ''))}</pre>")
-    parts.append("</body></html>\n")
-    return "\n".join(parts)
+    return parts
 
 
 def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[dict, list[tuple[Path, str]]]:
