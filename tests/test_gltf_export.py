@@ -63,7 +63,7 @@ def test_glb_passes_the_khronos_validator_with_its_audio_beside(glb):
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
     info = report["info"]
     assert info["animationCount"] == 1 and info["hasMorphTargets"] and info["hasTextures"]
-    assert figures["frames"] == T and figures["max_error_mm"] <= 0.05
+    assert figures["frames"] == T and figures["max_error_mm"] <= 0.1
     assert path.with_suffix(".wav").is_file() and not list(path.parent.glob(".*tmp*"))
 
 
@@ -71,7 +71,7 @@ def test_an_unwritable_glb_path_is_one_line_and_nothing_is_written(animated, tmp
     mesh, motion, tex, samples = animated
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    for bad in (blocker / "head.glb", tmp_path / "head.obj", tmp_path):
+    for bad in (blocker / "head.glb", blocker / "a" / "head.glb", tmp_path / "head.obj", tmp_path):
         with pytest.raises(LipsynthError) as e:
             gltf_export.write_glb(bad, mesh, motion, tex, FPS, samples)
         assert "\n" not in str(e.value) and str(bad) in str(e.value)

@@ -7,9 +7,10 @@ cavity and teeth behind it); each frame the model's predicted points (Karras: ja
 other families: the lips) move it by a pre-factorised bi-Laplacian solve (``pipeline.face.bilaplacian``);
 pyvista renders it off screen (EGL), textured and lit, front and three-quarter views side by side, into
 an H.264 + AAC MP4 with the audio (``pipeline.face.face_mesh``); the animated mesh is exported as OBJ +
-PC2 point cache (``pipeline.face.mesh_export``). Stage: ``render_mesh.model`` saying
-``synthesize.audio`` → ``render_mesh.out`` and ``render_mesh.export``; ``lipsynth render-mesh`` does
-the same for any audio.
+PC2 point cache (``pipeline.face.mesh_export``) and as glTF 2.0 binary with its audio beside
+(``pipeline.face.gltf_export``: ``head.glb`` + ``head.wav``, morph targets + a weights animation).
+Stage: ``render_mesh.model`` saying ``synthesize.audio`` → ``render_mesh.out`` and ``render_mesh.export``;
+``lipsynth render-mesh`` does the same for any audio.
 
 Run: ``python -m stages.render_mesh.render_mesh``.
 """
@@ -25,7 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.errors import LipsynthError
-from pipeline.face import face_mesh, mesh_export
+from pipeline.face import face_mesh, gltf_export, mesh_export
 from pipeline.face.canonical import Surface, TextureWindow
 from pipeline.face.dlib_face import LIP_POINTS
 from pipeline.face.head_mesh import HeadMesh, head_mesh, smooth_surface
@@ -105,12 +106,17 @@ def animate_head(audio: str, model: str, fps: float = 25.0, step_mm: float = 2.0
 
 
 def render_mesh(audio: str, model: str, out: str, fps: float = 25.0, size: int = 512, step_mm: float = 2.0,
-                emotion=None, create_folder: bool = False, export: str | None = None) -> dict:
+                emotion=None, create_folder: bool = False, export: str | None = None, glb: str | None = None) -> dict:
     """Render the animated head video (front | three-quarter view, audio muxed); returns timing figures.
 
     ``export``: also write the animated mesh there (OBJ + MTL + PNG texture + PC2 point cache,
-    ``pipeline.face.mesh_export``).
+    ``pipeline.face.mesh_export``, and ``export``.glb + .wav). ``glb``: the glTF 2.0 binary's path
+    (default with ``export``: ``export``.glb), its audio beside it (same stem, .wav); checked writable
+    before any work.
     """
+    glb = glb or (f"{export}.glb" if export else None)
+    if glb:
+        gltf_export.check_writable(glb)
     out_path = Path(out)
     if not out_path.parent.is_dir():
         if not create_folder:
@@ -131,11 +137,16 @@ def render_mesh(audio: str, model: str, out: str, fps: float = 25.0, size: int =
     t2 = time.perf_counter()
     if export:
         mesh_export.write_animated_mesh(export, mesh.skin, motion.skin, head.speaker.head_texture, fps)
+    gltf = gltf_export.write_glb(glb, mesh, motion, head.speaker.head_texture, fps, head.samples) if glb else {}
     log.info("wrote %s: %d frames at %.3f fps, head %d vertices / %d triangles; deform %.1f ms/frame, render + "
              "encode %.1f ms/frame", out_path, n, fps, len(mesh.skin.vertices), len(mesh.skin.triangles), head.deform_ms,
              1000 * (t2 - t1) / n)
+    if gltf:
+        log.info("wrote %s (%.1f MB): %d morph targets, worst vertex %.3f mm from the rendered motion; audio %s",
+                 gltf["glb"], gltf["bytes"] / 1e6, gltf["morph_targets"], gltf["max_error_mm"], gltf["audio"])
     return dict(frames=n, vertices=len(mesh.skin.vertices), triangles=len(mesh.skin.triangles),
-                deform_ms=round(head.deform_ms, 2), render_ms=round(1000 * (t2 - t1) / n, 2))
+                deform_ms=round(head.deform_ms, 2), render_ms=round(1000 * (t2 - t1) / n, 2),
+                **{f"glb_{k}": v for k, v in gltf.items() if k in ("morph_targets", "max_error_mm", "bytes")})
 
 
 def run(params) -> dict:
