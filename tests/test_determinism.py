@@ -9,6 +9,7 @@ import yaml
 
 from pipeline.simd_level import AVX2_CAP, AVX512_SKX, cpu_flags
 from bench.cross_vendor import result_of, start_on
+from tests.conftest import skip_unless_ci
 from tests.helpers import copy_project, dvc
 
 def lowest_dispatch() -> dict:
@@ -59,7 +60,7 @@ def test_training_steps_are_the_same_bits_on_an_emulated_amd_cpu():
     ``bench/cross_vendor.py`` runs both)."""
     qemu = shutil.which("qemu-x86_64")
     if qemu is None:
-        pytest.skip("qemu-x86_64 not installed (Debian package qemu-user; .ci/run installs it)")
+        skip_unless_ci("qemu-x86_64 not installed (Debian package qemu-user; .ci/run installs it)")
     t0 = time.perf_counter()
     children = {cpu: start_on(cpu, ["lstm"]) for cpu in ("native", "EPYC-Rome-v1")}
     weights = {cpu: result_of(cpu, child, t0)["lstm"] for cpu, child in children.items()}

@@ -418,6 +418,18 @@ def test_personalize_one_video_split_in_time_from_scratch_and_from_the_shipped_b
 
 
 @pytest.mark.slow
+def test_the_report_page_dvc_repro_wrote_renders_in_headless_chromium(project, tmp_path):
+    """The page the report stage wrote in this reproduction: its players play, its plots render, no errors."""
+    from tests.helpers.browser import assert_page_renders, check_in_browser
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    page = project / params["report"]["out"] / "index.html"
+    text = page.read_text()
+    state = check_in_browser(page, tmp_path / "screenshot.png")
+    assert text.count("<video") >= 1 and text.count("<svg") >= 1
+    assert_page_renders(state, n_videos=text.count("<video"), n_svgs=text.count("<svg"))
+
+
+@pytest.mark.slow
 def test_editing_a_parameters_meaning_reruns_nothing(project):
     """A key's meaning (pipeline/params/help.yaml) and the params.yaml comments rendered from it are
     prose no stage runs: editing them must leave every stage cached."""

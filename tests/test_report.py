@@ -223,19 +223,6 @@ def test_the_report_renders_in_headless_chromium(tmp_path):
     assert (tmp_path / "screenshot.png").stat().st_size > 10_000
 
 
-@pytest.mark.slow
-def test_the_project_report_renders_in_headless_chromium(tmp_path):
-    """The page `dvc repro` wrote (skipped when the pipeline has not run here)."""
-    page = ROOT / yaml.safe_load((ROOT / "params.yaml").read_text())["report"]["out"] / "index.html"
-    if not page.is_file():
-        pytest.skip(f"{page} not generated (dvc repro report)")
-    n_videos = page.read_text().count("<video")
-    state = check_in_browser(page, tmp_path / "screenshot.png")
-    print(f"screenshot: {tmp_path / 'screenshot.png'}")
-    assert n_videos >= 1
-    assert_page_renders(state, n_videos=n_videos, n_svgs=page.read_text().count("<svg"))
-
-
 def test_the_committed_grid_page_plays_its_videos_in_headless_chromium(tmp_path):
     """reports/grid_s1/ is committed (docs/report.md links it): every player on it finds its clip and plays it."""
     page = ROOT / "reports" / "grid_s1" / "index.html"

@@ -9,11 +9,13 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import skip_unless_ci
+
 
 def chromium() -> str:
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
     if exe is None:
-        pytest.skip("chromium not installed (Debian package `chromium`; .ci/run installs it when it can)")
+        skip_unless_ci("chromium not installed (Debian package `chromium`; .ci/run installs it when it can)")
     return exe
 
 
