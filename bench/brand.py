@@ -19,14 +19,14 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
 from pipeline.models import voice_puppet  # noqa: E402
-from pipeline.audio import vocal_features
+from pipeline.audio import vocal_features  # noqa: E402
 from pipeline.models.model_folder import load_puppet  # noqa: E402
 from pipeline.models.mouth_prediction import load_audio  # noqa: E402
 from pipeline.params import load_params  # noqa: E402

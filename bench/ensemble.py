@@ -18,16 +18,16 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from karras_grid import score                                           # noqa: E402
-from pipeline.models.mouth_prediction import predict_mouth                    # noqa: E402
-from pipeline.params import load_params                                 # noqa: E402
-from pipeline.io.store import open_group                                   # noqa: E402
+from karras_grid import score
+from pipeline.models.mouth_prediction import predict_mouth
+from pipeline.params import load_params
+from pipeline.io.store import open_group
 
 
 def main() -> int:

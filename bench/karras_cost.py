@@ -16,14 +16,14 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import numpy as np
 import torch
 
 
-from pipeline.models.karras_network import KarrasNetwork, multiply_adds  # noqa: E402
-from pipeline.audio.speech_autocorrelation import autocorrelation_features  # noqa: E402
+from pipeline.models.karras_network import KarrasNetwork, multiply_adds
+from pipeline.audio.speech_autocorrelation import autocorrelation_features
 
 
 def timed(fn, repeats: int) -> float:

@@ -23,15 +23,15 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import numpy as np
 
 
-from pipeline.measures import mouth_metrics  # noqa: E402
-from pipeline.models.mouth_pca import reconstruct                              # noqa: E402
-from pipeline.models.mouth_prediction import predict_mouth, to_frames         # noqa: E402
-from pipeline.params import load_params                                 # noqa: E402
+from pipeline.measures import mouth_metrics
+from pipeline.models.mouth_pca import reconstruct
+from pipeline.models.mouth_prediction import predict_mouth, to_frames
+from pipeline.params import load_params
 
 
 def jitter(pred_coeffs: list, truths: list, oks: list, basis: dict) -> dict:

@@ -50,7 +50,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import numpy as np
 
@@ -59,7 +59,7 @@ ROOT = Path(__file__).resolve().parents[1]
 from pipeline.face import dlib_face  # noqa: E402
 from pipeline.face import mediapipe_lips as mpl  # noqa: E402
 from pipeline.io import media  # noqa: E402
-from pipeline.measures.lipsync_measures import audio_envelope, best_lag, inner_opening  # noqa: E402
+from pipeline.measures.lipsync_measures import audio_envelope, best_lag  # noqa: E402
 from pipeline.params import Landmarks  # noqa: E402
 from stages.landmarks.landmarks import track_video  # noqa: E402
 
@@ -204,7 +204,7 @@ def jitter(lips: np.ndarray, still: np.ndarray) -> dict:
     """On still frames: RMS distance (%IOD) of the lip points from their trend, and RMS frame-to-frame step."""
     d = np.linalg.norm((lips - trend(lips))[still], axis=-1)
     step = np.linalg.norm(np.diff(lips, axis=0)[still[1:] & still[:-1]], axis=-1)
-    rms = lambda v: 100 * float(np.sqrt(np.nanmean(v ** 2))) if np.isfinite(v).any() else float("nan")  # noqa: E731
+    rms = lambda v: 100 * float(np.sqrt(np.nanmean(v ** 2))) if np.isfinite(v).any() else float("nan")
     return dict(rms=rms(d), step_rms=rms(step))
 
 

@@ -33,16 +33,16 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import cv2
 import numpy as np
 import yaml
 
 
-from lipsynth import lipsync_quality as quality  # noqa: E402
-from pipeline.io import media  # noqa: E402
-from pipeline.params import load_params  # noqa: E402
+from lipsynth import lipsync_quality as quality
+from pipeline.io import media
+from pipeline.params import load_params
 
 ROOT = Path(__file__).resolve().parents[1]
 DIAG = ROOT / "runs" / "diagnosis"

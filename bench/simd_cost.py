@@ -28,9 +28,9 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
-from bench.bench_results import publish, stamp  # noqa: E402
+from bench.bench_results import publish, stamp
 
 ROOT = Path(__file__).resolve().parents[1]
 AUDIO = ROOT.parent / "shared" / "data" / "hdtf" / "RD_Radio31_000.wav"

@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import numpy as np
 import yaml
@@ -206,8 +206,8 @@ def main() -> None:
             for k, m in json.loads(xsj.read_text())["models"].items() if k.endswith("lstm_shipped"))
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(result, indent=2))
-    print(f"\n| front end | cost ms/s (3 s, 50 s) | GRID s1 val % IOD | val corr | 14-clip set: corr lag 0 | best lag | "
-          f"within 1 | unseen people (n): corr lag 0 | best | within 1 |\n|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| front end | cost ms/s (3 s, 50 s) | GRID s1 val % IOD | val corr | 14-clip set: corr lag 0 | best lag | "
+          "within 1 | unseen people (n): corr lag 0 | best | within 1 |\n|---|---|---|---|---|---|---|---|---|---|")
     c = result["cost_ms_per_s"]
     print(f"| speech_embedding (stride {a.stride}) | {c['3 s']:.0f}, {c['50 s']:.0f} | {val['mouth_error_iod_pct']:.3f} | "
           f"{val['median_opening_corr']:.3f} | {core['median_corr_lag0']:+.2f} | {core['median_corr_best']:+.2f} | "

@@ -28,19 +28,19 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import cv2
 import numpy as np
 import yaml
 
 
-from lipsynth import lipsync_quality as quality  # noqa: E402
-from pipeline.params import check, load_params  # noqa: E402
-from pipeline.io.runner import setup_logging  # noqa: E402
-from lipsynth.speak import speak  # noqa: E402
-from stages.composite import composite  # noqa: E402
-from stages.synthesize import synthesize  # noqa: E402
+from lipsynth import lipsync_quality as quality
+from pipeline.params import check, load_params
+from pipeline.io.runner import setup_logging
+from lipsynth.speak import speak
+from stages.composite import composite
+from stages.synthesize import synthesize
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -132,7 +132,7 @@ def write_results(rows: dict, path: Path) -> None:
     for r in rows.values():
         r.update(commit=commit, date=date)
     entry = old.setdefault("by_cpu", {}).setdefault(key, dict(rows={}))
-    for name, r in entry["rows"].items():                 # rows of earlier runs keep their own commit and date
+    for r in entry["rows"].values():                     # rows of earlier runs keep their own commit and date
         r.setdefault("commit", entry.get("commit"))
         r.setdefault("date", entry.get("date"))
     model = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),

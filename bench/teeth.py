@@ -19,13 +19,13 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import pipeline  # noqa: E402,F401  (before NumPy: caps every numeric library at one SIMD level)
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import cv2
 import numpy as np
 
 
-from pipeline.io import media  # noqa: E402
+from pipeline.io import media
 from pipeline.face import dlib_face
 
 

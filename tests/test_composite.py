@@ -53,7 +53,9 @@ def test_pyramid_blend_equals_blending_the_two_pyramids():
     levels = 4
     gf, gb, ga = [front.astype(np.float32)], [back.astype(np.float32)], [alpha]
     for _ in range(levels):
-        gf.append(cv2.pyrDown(gf[-1])); gb.append(cv2.pyrDown(gb[-1])); ga.append(cv2.pyrDown(ga[-1]))
+        gf.append(cv2.pyrDown(gf[-1]))
+        gb.append(cv2.pyrDown(gb[-1]))
+        ga.append(cv2.pyrDown(ga[-1]))
     out = ga[-1][..., None] * gf[-1] + (1 - ga[-1][..., None]) * gb[-1]
     for lvl in range(levels - 1, -1, -1):
         size = (gf[lvl].shape[1], gf[lvl].shape[0])
@@ -227,6 +229,6 @@ def test_jaw_correction_of_a_large_texture_uses_the_flow_of_a_smaller_copy(landm
     band = jaw_band(4 * landmarks_uv, 512, 24.0)
     fixed = jaw_correction(synth, face, band)
     near, far = band > 0.6, band < 1e-3
-    err = lambda img, m: np.abs(img.astype(float) - face.astype(float))[m].mean()       # noqa: E731
+    err = lambda img, m: np.abs(img.astype(float) - face.astype(float))[m].mean()
     assert err(fixed, near) < 0.5 * err(synth, near), (err(fixed, near), err(synth, near))
     assert np.abs(fixed.astype(int) - synth)[far].mean() < 1.0

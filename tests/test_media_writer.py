@@ -34,7 +34,7 @@ def test_opencv_threads_is_restored():
 def test_library_threads_holds_opencv_and_blas_and_restores_them():
     import cv2
     from threadpoolctl import threadpool_info
-    blas = lambda: [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]     # noqa: E731
+    blas = lambda: [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
     before_cv, before_blas = cv2.getNumThreads(), blas()
     assert before_blas, "NumPy's OpenBLAS is loaded"
     with library_threads(1):

@@ -14,11 +14,11 @@ except ImportError:
     skip_unless_ci("mediapipe not installed: `pip install --no-deps` it as pyproject.toml's mediapipe extra says "
                    "(.ci/run does)")
 
-from pipeline.face import dlib_face  # noqa: E402
-from pipeline.face import mediapipe_lips as mpl  # noqa: E402
-from pipeline.io import media  # noqa: E402
-from pipeline.measures.lipsync_measures import inner_opening  # noqa: E402
-from tests.conftest import shared  # noqa: E402
+from pipeline.face import dlib_face
+from pipeline.face import mediapipe_lips as mpl
+from pipeline.io import media
+from pipeline.measures.lipsync_measures import inner_opening
+from tests.conftest import shared
 
 OPEN_FRAME = 27          # WDA_KatieHill_000.mp4: mouth wide open (dlib inner opening ≈ 26 % IOD)
 

@@ -17,7 +17,9 @@ def recording(lag: int, n_segments=4, m=600, d=24, seed=0, noise=0.3):
         x = np.stack([np.convolve(raw[:, j], kernel, "same") for j in range(d)], 1)
         y_true = x @ A + noise * rng.normal(size=(m + 60, 3))
         y = np.roll(y_true, lag, axis=0)                   # what the camera shows at t happened at t - lag
-        xs.append(x[30:30 + m]); ys.append(y[30:30 + m]); oks.append(np.ones(m, bool))
+        xs.append(x[30:30 + m])
+        ys.append(y[30:30 + m])
+        oks.append(np.ones(m, bool))
     return xs, ys, oks
 
 

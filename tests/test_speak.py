@@ -116,5 +116,5 @@ def test_a_video_corrupt_mid_file_is_one_line_without_dask_shutdown_noise(tmp_pa
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     line = one_error_line(r)
     assert str(target) in line and "corrupt" in line
-    assert not [l for l in r.stderr.splitlines() if "distributed" in l or "WARNING" in l], r.stderr
+    assert not [line for line in r.stderr.splitlines() if "distributed" in line or "WARNING" in line], r.stderr
     assert not out.exists()

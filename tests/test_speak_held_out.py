@@ -134,7 +134,7 @@ def test_the_mouth_sits_where_the_tracked_mouth_is_at_1x_and_4x(grid_model, tmp_
         a, b = a[:n], b[:n]
         iod = np.linalg.norm(a[:, 36:42].mean(1) - a[:, 42:48].mean(1), axis=1)
         assert np.isfinite(iod).mean() > 0.9, name                                   # both tracked
-        dist = lambda ix: np.nanmedian(np.linalg.norm(a[:, ix] - b[:, ix], axis=2).mean(1) / iod)  # noqa: E731
+        dist = lambda ix, a=a, b=b, iod=iod: np.nanmedian(np.linalg.norm(a[:, ix] - b[:, ix], axis=2).mean(1) / iod)
         errors[name] = dict(mouth=dist(slice(48, 68)), nose_chin=dist(np.r_[27:36, 6:11]),
                             mouth_dy=np.nanmedian((b[:, 48:68, 1] - a[:, 48:68, 1]).mean(1) / iod))
     for name, e in errors.items():

@@ -138,7 +138,7 @@ def test_a_large_candidate_is_aligned_through_the_flow_of_smaller_copies():
     bend = 4.0 * np.sin(gx / size * np.pi) * np.sin(gy / size * np.pi)            # ≤ 4 px, smooth
     candidate = cv2.remap(target, gx - bend, gy + 0.5 * bend, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
     lm = np.tile([size / 2, size / 2], (68, 1)) + np.random.default_rng(1).normal(0, 30, (68, 2))
-    err = lambda im: np.abs(im.astype(float) - target)[40:-40, 40:-40].mean()       # noqa: E731
+    err = lambda im: np.abs(im.astype(float) - target)[40:-40, 40:-40].mean()
     small = tb.align_to(candidate, lm, target, lm, sigma=24.0, flow_max=192)
     full = tb.align_to(candidate, lm, target, lm, sigma=24.0, flow_max=384)
     none = tb.align_to(candidate, lm, target, lm, sigma=24.0, flow=False)
@@ -161,11 +161,11 @@ def test_a_cross_fade_keeps_the_detail_energy_of_its_sources():
     """Half-way through a switch, the blend of two frames' (uncorrelated) details keeps their energy instead of
     losing half of it; the same frame blended with itself is left as it is."""
     rng = np.random.default_rng(4)
-    grain = lambda: np.clip(128 + rng.normal(0, 20, (96, 96, 3)), 0, 255).astype(np.uint8)     # noqa: E731
+    grain = lambda: np.clip(128 + rng.normal(0, 20, (96, 96, 3)), 0, 255).astype(np.uint8)
     a, b = grain(), grain()
     median = np.full((96, 96, 3), 128, np.uint8)
     lm = np.tile([48.0, 48.0], (68, 1)) + np.random.default_rng(0).normal(0, 10, (68, 2))
-    energy = lambda im: np.mean(np.square(im.astype(float) - 128)[8:-8, 8:-8])                  # noqa: E731
+    energy = lambda im: np.mean(np.square(im.astype(float) - 128)[8:-8, 8:-8])
     one = tb.two_band(median, lm, [(a, lm, 1.0)], band_sigma=2.0, warp_sigma=8.0, flow=False)
     half = tb.two_band(median, lm, [(a, lm, 0.5), (b, lm, 0.5)], band_sigma=2.0, warp_sigma=8.0, flow=False)
     assert energy(half) == pytest.approx(energy(one), rel=0.1), (energy(half), energy(one))    # a plain sum: ½

@@ -109,7 +109,8 @@ def pyramid_blend(front: np.ndarray, back: np.ndarray, alpha: np.ndarray, levels
     b = back.astype(np.float32)
     gd, ga = [front.astype(np.float32) - b], [alpha.astype(np.float32)]
     for _ in range(levels):
-        gd.append(cv2.pyrDown(gd[-1])); ga.append(cv2.pyrDown(ga[-1]))
+        gd.append(cv2.pyrDown(gd[-1]))
+        ga.append(cv2.pyrDown(ga[-1]))
     out = ga[-1][..., None] * gd[-1]
     for lvl in range(levels - 1, -1, -1):
         size = (gd[lvl].shape[1], gd[lvl].shape[0])

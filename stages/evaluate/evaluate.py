@@ -134,7 +134,7 @@ def rounded(x, digits: int = 6):
 def write_opening_csv(path: Path, series: np.ndarray, fps: float) -> None:
     lines = ["frame,time_s,output_px,original_px"]
     for i, (o, r) in enumerate(series):
-        f = lambda v: "" if not np.isfinite(v) else f"{v:.3f}"  # noqa: E731
+        f = lambda v: "" if not np.isfinite(v) else f"{v:.3f}"
         lines.append(f"{i},{i / fps:.4f},{f(o)},{f(r)}")
     path.write_text("\n".join(lines) + "\n")
 

@@ -120,7 +120,8 @@ def factorize(landmarks: np.ndarray) -> np.ndarray:
         i, j = M[2 * f], M[2 * f + 1]
         A += [row(i, i) - row(j, j), row(i, j)]
         rhs += [0.0, 0.0]
-    A.append(row(M[0], M[0])); rhs.append(1.0)
+    A.append(row(M[0], M[0]))
+    rhs.append(1.0)
     q = np.linalg.lstsq(np.array(A), np.array(rhs), rcond=None)[0]
     L = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
     ev, evec = np.linalg.eigh(L)

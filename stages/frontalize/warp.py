@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.face.canonical import sample_image as frontal_texture   # the warp itself: shared with the head texture
+from pipeline.face.canonical import sample_image as frontal_texture  # noqa: F401  (re-exported: the warp itself, shared with the head texture)
 
 
 def clothing_mask(texture: np.ndarray, jaw_uv: np.ndarray, dark_value: int, white_saturation: int,

@@ -86,13 +86,17 @@ def track_video(grays, p: Landmarks):
                 relation = None
         detected.append(det)
         if box is None:
-            lms.append(np.zeros((68, 2), np.float32)); conf.append(0.0); valid.append(False)
+            lms.append(np.zeros((68, 2), np.float32))
+            conf.append(0.0)
+            valid.append(False)
             continue
         lm = dlib_face.predict_landmarks(gray, box)
         c = landmark_confidence(gray, box, lm, p.jitter)
         inside = bool(np.all(lm > -p.margin * s) and np.all(lm < (1 + p.margin) * s))
         ok = c >= p.min_confidence and inside
-        lms.append(lm); conf.append(c); valid.append(ok)
+        lms.append(lm)
+        conf.append(c)
+        valid.append(ok)
         if ok:
             if relation is None:
                 relation = box_relation(box, lm)

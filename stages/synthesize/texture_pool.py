@@ -208,9 +208,9 @@ def synthesize_frame(tp: TexturePool, lip: np.ndarray, p: Synthesize, search: di
     wanted = lip.reshape(len(LIP_POINTS), 2)
     small, scale, flm, px, T = tp.small, tp.scale, tp.flm, tp.px, tp.T
     if tp.method != "aligned":
-        get = lambda idx: small[idx]                                               # noqa: E731
+        get = lambda idx: small[idx]
     else:                                   # candidates moved onto the wanted lip points first
-        get = lambda idx: two_band.align_candidates(                                  # noqa: E731
+        get = lambda idx: two_band.align_candidates(
             small[idx], scale * flm[idx][:, ALIGNED], scale * np.concatenate([wanted, flm[idx[0]][NOSE]]),
             scale * px * p.detail_warp_px)
     rgb, info = tx.synthesize_texture(lip, tp.shapes, get, flm, p.n, p.alpha, tp.proxies, tp.detail,

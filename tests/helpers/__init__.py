@@ -47,6 +47,6 @@ def dvc_status(proj) -> dict:
 
 def one_error_line(r):
     """The one ``lipsynth: error`` line of a finished CLI run that exited with code 2."""
-    lines = [l for l in r.stderr.strip().splitlines() if l.startswith("lipsynth: error")]
+    lines = [line for line in r.stderr.strip().splitlines() if line.startswith("lipsynth: error")]
     assert r.returncode == 2 and len(lines) == 1, r.stderr
     return lines[0]

@@ -129,6 +129,8 @@ def write_wav(path, samples, rate, channels=1):
     import wave
     pcm = np.clip(np.repeat(np.asarray(samples)[:, None], channels, 1) * 32767, -32768, 32767).astype("<i2")
     with wave.open(str(path), "wb") as w:
-        w.setnchannels(channels); w.setsampwidth(2); w.setframerate(rate)
+        w.setnchannels(channels)
+        w.setsampwidth(2)
+        w.setframerate(rate)
         w.writeframes(pcm.tobytes())
     return path
