@@ -2,6 +2,7 @@
 (``pipeline.face.gltf_viewer``, ``lipsynth/web/head_viewer.js``): the Khronos validator finds no error,
 three.js plays it with the mouth moving, the viewer follows the audio clock, a bad path is one line."""
 import json
+import re
 import time
 
 import numpy as np
@@ -91,18 +92,18 @@ def _open_viewer(dt, s, timeout=90.0) -> None:
     pytest.fail("the 3D viewer did not load within 90 s")
 
 
-def test_three_js_plays_the_glb_with_the_mouth_moving_and_follows_the_audio(glb, tmp_path):
+def play_and_check(page, tmp_path) -> None:
+    """Open ``page`` in headless Chromium: three.js's AnimationMixer moves the mouth, the canvas is drawn,
+    and, playing, the picture changes and the pose on screen is within one frame of the audio clock at 5 s."""
     from tests.helpers.browser import page_errors, page_session, screenshot
-    path, _ = glb
-    page = gltf_viewer.write_viewer_page(path, tmp_path / "viewer" / "head.html", width=320, height=240)
     with page_session(page.absolute().as_uri(), tmp_path / "chromium-profile") as (dt, s):
         _open_viewer(dt, s)
         v = "window.lipsynthViewers[0]"
         # AnimationMixer at a shut (t = 0) and an open (t = 0.5 s) frame: some skin vertex moves > 5 mm
         moved = dt.evaluate(s, f"""(() => {{ const v = {v}; let best = 0;
-            for (let i = 0; i < 6000; i += 7) {{ let a, b; try {{ a = v.vertexAt(0, i); b = v.vertexAt(0.5, i); }}
-              catch (e) {{ break; }} if (isNaN(a[0])) break;
-              best = Math.max(best, Math.hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2])); }} return best; }})()""")
+            for (let i = 0; i < 6000; i += 7) {{ const a = v.vertexAt(0, i), b = v.vertexAt(0.5, i);
+              if (isNaN(a[0])) break; best = Math.max(best, Math.hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2])); }}
+            return best; }})()""")
         assert moved > 0.005, moved                                     # metres
         first = np.array(dt.evaluate(s, f"{v}.snapshot()"), float).reshape(64, 64, 4)
         assert first[..., :3].std() > 10                                # drawn: not a blank canvas
@@ -125,3 +126,24 @@ def test_three_js_plays_the_glb_with_the_mouth_moving_and_follows_the_audio(glb,
     assert frames > 10
     assert np.abs(later - first).max() > 30                           # the picture changed as it played
     assert errors == [], errors
+
+
+def test_three_js_plays_the_glb_with_the_mouth_moving_and_follows_the_audio(glb, tmp_path):
+    page = gltf_viewer.write_viewer_page(glb[0], tmp_path / "viewer" / "head.html", width=320, height=240)
+    play_and_check(page, tmp_path)
+
+
+def test_the_report_page_shows_the_head_in_sync_with_its_audio(glb, tmp_path):
+    import shutil
+    from stages.report import report
+    from tests.test_report import write_fixture_project
+    pfile, tree = write_fixture_project(tmp_path)
+    folder = tmp_path / "head"                                         # the render_mesh stage's export folder
+    folder.mkdir()
+    for f in (glb[0], glb[0].with_suffix(".wav")):
+        shutil.copyfile(f, folder / f.name)
+    page = report.write_report(report.load_params(pfile), pfile)
+    text = page.read_text()
+    assert text.count('class="lipsynth-head"') == 1 and 'src="head/head.wav"' in text
+    assert not re.search(r'(src|href)="(https?:)?//', text)            # nothing from the internet
+    play_and_check(page, tmp_path)

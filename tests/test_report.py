@@ -177,6 +177,7 @@ def write_fixture_project(tmp_path, video_seconds=2.0, fps=25.0):
     tree["delay_sweep"]["plots"] = str(tmp_path / "sweep.csv")
     tree["evaluate"].update(out=str(tmp_path / "evaluate"), metrics=str(tmp_path / "evaluate.json"))
     tree["report"]["out"] = str(tmp_path / "report")
+    tree["render_mesh"]["export"] = str(tmp_path / "head")                   # absent: no 3D viewer
     ctx = fake_ctx(1)
     (tmp_path / "train.json").write_text(json.dumps(TRAIN))
     for name, rows in (("loss.csv", ctx["loss_rows"]), ("sweep.csv", ctx["sweep_rows"])):

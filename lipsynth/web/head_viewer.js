@@ -35,7 +35,8 @@
   }
 
   async function viewer(div, [THREE, {GLTFLoader}, {OrbitControls}]) {
-    const canvas = div.querySelector("canvas"), audio = div.querySelector("audio");
+    const canvas = div.querySelector("canvas");
+    const audio = div.querySelector("audio") || {currentTime: 0, play: () => Promise.resolve()};   // no audio: frame 0
     const state = {ready: false, shownTime: 0, frameTime: 0, fps: 25, audio: audio, frames: 0};
     const renderer = new THREE.WebGLRenderer({canvas, antialias: true, preserveDrawingBuffer: true});
     renderer.setPixelRatio(1);

@@ -14,14 +14,15 @@ from __future__ import annotations
 
 import base64
 import html
-import importlib.resources
 import json
 import shutil
 from pathlib import Path
 
 from pipeline.errors import LipsynthError
 
-WEB = Path(str(importlib.resources.files("lipsynth") / "web"))
+# the lipsynth package's web assets (package data), found beside this package without importing lipsynth
+# (pipeline imports no application): <root>/lipsynth/web in the checkout and in site-packages alike
+WEB = Path(__file__).resolve().parents[2] / "lipsynth" / "web"
 MODULES = ["three.core.js", "three.module.js", "BufferGeometryUtils.js", "SkeletonUtils.js", "GLTFLoader.js",
            "OrbitControls.js"]
 
@@ -59,15 +60,35 @@ def write_viewer_assets(folder, glb, width: int = 640, height: int = 480, rel: s
     (folder / f"{stem}.glb.js").write_text(
         f"window.LIPSYNTH_GLB = window.LIPSYNTH_GLB || {{}};\nwindow.LIPSYNTH_GLB[{json.dumps(stem)}] = \"{b64}\";\n")
     wav = glb.with_suffix(".wav")
-    audio = ""
-    if wav.is_file():
-        if wav.resolve() != (folder / wav.name).resolve():
-            shutil.copyfile(wav, folder / wav.name)
-        audio = f"<audio controls preload=\"auto\" src=\"{html.escape(rel + wav.name)}\"></audio>"
+    if wav.is_file() and wav.resolve() != (folder / wav.name).resolve():
+        shutil.copyfile(wav, folder / wav.name)
+    return viewer_html(stem, wav.name if wav.is_file() else None, width, height, rel)
+
+
+def viewer_html(stem: str, audio: str | None, width: int = 640, height: int = 480, rel: str = "") -> str:
+    """The page's markup for a head whose assets ``write_viewer_assets`` wrote (pure: no file access).
+
+    Parameters
+    ----------
+    stem : str
+        The ``.glb``'s stem (its data script is ``<rel><stem>.glb.js``).
+    audio : str or None
+        The audio file's name in the assets folder (None: no audio player; the head stays at frame 0).
+    width, height : int
+        Canvas size (px).
+    rel : str
+        The assets folder's path relative to the page.
+
+    Returns
+    -------
+    str
+        A ``div.lipsynth-head`` (canvas + audio) and the three scripts.
+    """
     e = html.escape
+    player = f"<audio controls preload=\"auto\" src=\"{e(rel + audio)}\"></audio>" if audio else ""
     return (f"<div class=\"lipsynth-head\" data-glb=\"{e(stem)}\">"
             f"<canvas width=\"{width}\" height=\"{height}\" style=\"display:block;touch-action:none\"></canvas>"
-            f"{audio}</div>"
+            f"{player}</div>"
             f"<script src=\"{e(rel)}three-modules.js\"></script><script src=\"{e(rel + stem)}.glb.js\"></script>"
             f"<script src=\"{e(rel)}head_viewer.js\"></script>")
 

@@ -13,6 +13,8 @@ What it shows, from the files the other stages write:
   (target | result | texture, H.264) copied next to the page;
 - with ``report.benches`` (a folder of bench results; ``bench/report.py`` sets it): the
   ``lipsynth speak`` path beside the DVC path, and other people's voices per person and model;
+- with the 3D head's glTF (``render_mesh.export``/head.glb): an interactive three.js viewer of it,
+  played in sync with its audio (``pipeline.face.gltf_viewer``; assets in ``head/``);
 - the params file. Not the date, the commit or the last run's timings (``logs/*.timing.json``): the page is
   the same bytes on every run and machine, so ``dvc repro`` on a fresh clone reproduces its hash.
 
@@ -31,6 +33,7 @@ import logging
 import shutil
 from pathlib import Path
 
+from pipeline.face import gltf_viewer
 from pipeline.params import Params, as_dict, load_params
 from pipeline.io.runner import run_main, setup_logging
 from pipeline.io.store import atomic_output
@@ -93,7 +96,7 @@ def build_html(ctx: dict) -> str:
     e = html.escape
     parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{e(ctx['title'])}</title>"
              f"<style>{CSS}</style></head><body>", f"<h1>{e(ctx['title'])}</h1>"]
-    parts += model_section(ctx) + training_section(ctx) + video_section(ctx) + bench_sections(ctx)
+    parts += model_section(ctx) + training_section(ctx) + video_section(ctx) + head_section(ctx) + bench_sections(ctx)
     parts.append("<h2>Synthesis speed</h2><p>Measured on every run, so not on this page (its bytes are the same on "
                  "every run and machine, and DVC's cache can trust them): the last run's thread time per frame and "
                  "phase is in <code>logs/synthesize.timing.json</code> and <code>logs/composite.timing.json</code>; "
@@ -181,6 +184,16 @@ def video_section(ctx: dict) -> list[str]:
     return parts
 
 
+def head_section(ctx: dict) -> list[str]:
+    """With the render_mesh stage's glTF head (``ctx['head_glb']``, ``ctx['head_audio']``): its three.js viewer."""
+    if not ctx.get("head_glb"):
+        return []
+    return ["<h2>The 3D head (Karras et al.)</h2><p>The speaker's textured head mesh driven by the model's predicted "
+            "face points for the synthesized audio, as exported (<code>head.glb</code>, glTF 2.0). Play the audio to "
+            "animate it; drag to orbit, scroll to zoom.</p>",
+            gltf_viewer.viewer_html("head", ctx.get("head_audio"), rel="head/")]
+
+
 def bench_sections(ctx: dict) -> list[str]:
     """With ``report.benches``: the DVC path beside the ``lipsynth speak`` path, and other people's voices."""
     parts = []
@@ -221,6 +234,9 @@ def gather(params: Params, params_file: Path, root: Path = Path(".")) -> tuple[d
                loss_rows=read_csv(root / params.train.plots), sweep_rows=read_csv(root / params.delay_sweep.plots),
                paper_delay_ms=params.report.paper_delay_ms, evaluate=ev, clips=clips,
                params_text=shown_params(params), **benches(params.report.benches, root))
+    glb = root / params.render_mesh.export / "head.glb"
+    if glb.is_file():
+        ctx.update(head_glb=glb, head_audio="head.wav" if glb.with_suffix(".wav").is_file() else None)
     return ctx, copies
 
 
@@ -255,6 +271,8 @@ def write_report(params: Params, params_file: Path) -> Path:
         for source, rel in copies:
             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(source, tmp / rel)
+        if ctx.get("head_glb"):
+            gltf_viewer.write_viewer_assets(tmp / "head", ctx["head_glb"], rel="head/")
         (tmp / "index.html").write_text(build_html(ctx))
     page = Path(params.report.out) / "index.html"
     log.info("wrote %s (%.1f kB page, %d videos)", page, page.stat().st_size / 1e3, len(copies))
