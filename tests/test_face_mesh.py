@@ -163,3 +163,30 @@ def test_a_model_folder_without_a_3d_face_is_refused_in_one_line(tmp_path):
     with pytest.raises(ModelError, match="no 3D face") as e:
         speaker_head(str(tmp_path))
     assert "\n" not in str(e.value) and str(tmp_path) in str(e.value)
+
+
+def test_no_pale_line_of_teeth_while_the_predicted_inner_lips_touch(head, monkeypatch):
+    """Front view, uniform grey skin: with the inner lips 1 mm apart the sliver between them shows no bright
+    (teeth-coloured) pixel; 5 mm apart, the teeth show."""
+    pytest.importorskip("pyvista")
+    monkeypatch.setenv("OFF_SCREEN", "True")
+    surface, window, lm, mesh = head
+    ids = list(range(48, 68))
+    lower = [ids.index(i) for i in list(range(55, 60)) + INNER_LOWER]
+    moved = np.repeat(lm[ids][None], 3, 0)
+    gap = (lm[INNER_LOWER, 1] - lm[INNER_UPPER, 1]).mean()
+    moved[1, lower, 1] += 1.0 - gap                                   # touching: 1 mm apart
+    moved[2, lower, 1] += 5.0 - gap                                   # parted: 5 mm
+    motion = face_mesh.animate(mesh, surface, lm, ids, moved)
+    assert list(face_mesh.teeth_hidden(ids, moved)) == [1.0, 1.0, 0.0]
+    r = face_mesh.HeadRenderer(mesh, np.full((window.height, window.width, 3), 150, np.uint8), 320)
+    try:
+        r.render(motion, 0)
+        touching, parted = (r.render(motion, t)[:, :320].astype(int).sum(-1) for t in (1, 2))
+    finally:
+        r.close()
+    bright = 500                                                       # lit grey skin sums to < 480 here
+    assert (touching > bright).sum() == 0
+    assert (parted > bright).sum() > 50
+    dark = (touching < 60)[100:, 60:260]                              # the sliver is the dark cavity instead
+    assert dark.sum() > 20

@@ -5,7 +5,10 @@ Motion: each driving point (Karras: jaw, nose, lips — 42 points; other familie
 moves its handle vertex by (predicted − rest) in the canonical plane; a pre-factorised bi-Laplacian
 solve (``pipeline.face.bilaplacian``) spreads that smoothly over the skin and holds the brows, eyes,
 nose bridge and forehead outline still; a moved vertex takes the surface depth at its new (x, y)
-("depth from the surface"). The upper teeth follow the upper inner lip, the lower teeth the jaw.
+("depth from the surface"). The upper teeth follow the upper inner lip, the lower teeth the jaw; while
+the predicted inner lips touch (gap below ``TEETH_SHUT_MM``) both rows sink ``TEETH_HIDDEN_MM`` deeper,
+behind the mouth cavity, so the sliver between the lips shows the dark cavity and not a pale line of
+teeth; they come forward as the lips part (fully at ``TEETH_OPEN_MM``).
 
 Rendering needs an off-screen OpenGL: EGL (Mesa) with ``OFF_SCREEN=True`` and
 ``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow`` (set here before pyvista is imported). Normals are
@@ -24,6 +27,8 @@ from pipeline.face.canonical import Surface
 from pipeline.face.head_mesh import TEETH_DEPTH_MM, HeadMesh, anchor_vertices, handle_vertices
 
 CHIN = 8
+TEETH_SHUT_MM, TEETH_OPEN_MM = 1.5, 3.0    #: inner-lip gap (mm): teeth hidden below the first, shown from the second
+TEETH_HIDDEN_MM = 25.0                     #: how much deeper hidden teeth sit (mm; the cavity is 8–22 mm deep)
 
 
 @dataclass
@@ -67,11 +72,37 @@ def animate(mesh: HeadMesh, surface: Surface, head_landmarks: np.ndarray, point_
     upper = d[:, [ids.index(i) for i in (61, 62, 63)]].mean(1)
     lower = d[:, ids.index(CHIN)] if CHIN in ids else 0.7 * d[:, [ids.index(i) for i in (65, 66, 67)]].mean(1)
 
-    def teeth(part, offset):        # carried by the offset, always TEETH_DEPTH_MM behind the skin there
+    depth = TEETH_DEPTH_MM + TEETH_HIDDEN_MM * teeth_hidden(ids, np.asarray(moved, np.float64))[:, None]
+
+    def teeth(part, offset):        # carried by the offset, TEETH_DEPTH_MM behind the skin there (deeper when hidden)
         txy = part.vertices[None, :, :2] + offset[:, None]
-        return np.concatenate([txy, surface.z(txy[..., 0], txy[..., 1])[..., None] + TEETH_DEPTH_MM], axis=-1)
+        return np.concatenate([txy, (surface.z(txy[..., 0], txy[..., 1]) + depth)[..., None]], axis=-1)
 
     return HeadMotion(np.concatenate([xy, z], axis=-1), teeth(mesh.upper_teeth, upper), teeth(mesh.lower_teeth, lower))
+
+
+def teeth_hidden(point_ids, moved: np.ndarray) -> np.ndarray:
+    """(T,) in [0, 1]: how hidden the teeth are — 1 while the predicted inner lips touch, 0 once they part.
+
+    Parameters
+    ----------
+    point_ids : list of int
+        (P,) 68-point indices of the driving points (the inner lips 61–63 and 65–67 among them).
+    moved : ndarray
+        (T, P, 2) their predicted positions (mm, y down).
+
+    Returns
+    -------
+    ndarray
+        (T,) 1 for a gap ≤ ``TEETH_SHUT_MM``, 0 for ≥ ``TEETH_OPEN_MM``, linear between; the gap is the mean
+        vertical distance of the inner-lip pairs 61/67, 62/66, 63/65. Without the lower inner lip: zeros.
+    """
+    ids = [int(i) for i in point_ids]
+    if not all(i in ids for i in (61, 62, 63, 65, 66, 67)):
+        return np.zeros(len(moved))
+    up, lo = [ids.index(i) for i in (61, 62, 63)], [ids.index(i) for i in (67, 66, 65)]
+    gap = (moved[:, lo, 1] - moved[:, up, 1]).mean(1)
+    return np.clip((TEETH_OPEN_MM - gap) / (TEETH_OPEN_MM - TEETH_SHUT_MM), 0.0, 1.0)
 
 
 def deformer_for(mesh: HeadMesh, head_landmarks: np.ndarray, point_ids) -> BiLaplacian:
