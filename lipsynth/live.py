@@ -27,31 +27,24 @@ one it judges and costs a core's share; the target's 3D fit is checked before st
 from __future__ import annotations
 
 import argparse
-import bisect
-import json
 import logging
-import os
-import queue
 import signal
 import sys
-import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from lipsynth.live_stream import STOP, stream
 from pipeline.errors import BadInputError
-from pipeline.io.live_io import SAMPLE_RATE, StreamWriter, paced_file, pcm_blocks
+from pipeline.io.live_io import paced_file, pcm_blocks
 from pipeline.io.runner import run_main, setup_logging
 from pipeline.io.store import i420_to_rgb
-from pipeline.io.threads import library_threads
 from pipeline.models.streaming_mouth import StreamingMouth
 from pipeline.params import Params, load_params
 
 log = logging.getLogger("lipsynth.live")
-STOP = threading.Event()          #: set by Ctrl-C or SIGTERM: the stream ends cleanly, as at the end of its audio
 
 
 def ping_pong(k: int, n: int) -> int:
@@ -163,24 +156,6 @@ class LiveEngine:
         return out
 
 
-class AudioBuffer:
-    """The audio so far (float32), appended by one thread and sliced by another (capacity doubles)."""
-
-    def __init__(self):
-        self.data, self.n = np.zeros(SAMPLE_RATE * 60, np.float32), 0
-
-    def append(self, block: np.ndarray) -> None:
-        if self.n + len(block) > len(self.data):
-            grown = np.zeros(2 * max(len(self.data), self.n + len(block)), np.float32)
-            grown[:self.n] = self.data[:self.n]
-            self.data = grown
-        self.data[self.n:self.n + len(block)] = block
-        self.n += len(block)
-
-    def slice(self, a: int, b: int) -> np.ndarray:
-        return self.data[a:min(b, self.n)].copy()
-
-
 def prepared(target: str, params: Params, model: str, cache: Path | None, prepared_only: bool):
     """The target's stores (``speak.prepare_target``), preprocessing only when allowed."""
     from lipsynth.speak import prepare_target
@@ -224,134 +199,6 @@ def run(args, params: Params) -> dict:
         log.info("the stream ended; the page still plays it (Ctrl-C stops)")
         STOP.wait()
         server.shutdown()
-    return stats
-
-
-def stream(engine: LiveEngine, source, args) -> dict:
-    """Run the pipeline until the audio ends; returns the stats (latencies, drops, drift)."""
-    fps = engine.fps
-    h, w = engine.frames.shape
-    out_path = None if args.out in (None, "-") else Path(args.out)
-    tmp = out_path.with_name(f".{out_path.name}.part") if out_path else None
-    sink = open(tmp, "wb") if tmp else sys.stdout.buffer
-    writer = StreamWriter(sink, fps, (w, h), SAMPLE_RATE, Path(args.hls) if args.hls else None, preset=args.preset)
-    audio_q: queue.Queue = queue.Queue(maxsize=500)
-    frames_q: queue.Queue = queue.Queue(maxsize=4 * args.threads)
-    arrivals: list[tuple[int, float]] = []             # (samples received before this block, its arrival)
-    stats = dict(frames=0, repeated=0, silence_fed_s=0.0, latency_ms=[], shape_ms=[])
-    failure: list[BaseException] = []
-
-    def read():
-        try:
-            for block, at in source:
-                audio_q.put((block, at))
-        except BaseException as exc:                   # noqa: BLE001  (handed to the main thread)
-            failure.append(exc)
-        audio_q.put(None)
-
-    def arrival(sample: int) -> float:
-        recent = arrivals[-2000:]
-        i = bisect.bisect_right(recent, (sample, float("inf"))) - 1
-        return recent[max(i, 0)][1]
-
-    def write_frames():
-        last = None
-        try:
-            while (item := frames_q.get()) is not None:
-                k, fut = item
-                frame = fut.result() if fut is not None else last
-                a0, a1 = int(round(k * SAMPLE_RATE / fps)), int(round((k + 1) * SAMPLE_RATE / fps))
-                audio = heard.slice(a0, a1)
-                t0 = time.perf_counter()
-                writer.write(frame, np.pad(audio, (0, a1 - a0 - len(audio))))
-                engine.thread_ms["encode"].append(1000 * (time.perf_counter() - t0))
-                stats["latency_ms"].append(1000 * (time.monotonic() - frame_arrival[k]))
-                last = frame
-        except BaseException as exc:                   # noqa: BLE001  (a broken pipe: the consumer went away)
-            failure.append(exc)
-            while frames_q.get() is not None:          # unblock the producer until it sees the failure
-                pass
-
-    heard = AudioBuffer()
-    frame_arrival: dict[int, float] = {}
-    reader = threading.Thread(target=read, daemon=True, name="live-audio")
-    writer_thread = threading.Thread(target=write_frames, daemon=True, name="live-writer")
-    reader.start()
-    writer_thread.start()
-    received, ended = 0, False
-    started = None
-    try:
-        with ThreadPoolExecutor(args.threads, thread_name_prefix="live-frame") as pool, library_threads(1):
-            while not ended and not failure:
-                try:
-                    item = None if STOP.is_set() else audio_q.get(timeout=min(args.gap, 0.25))
-                except queue.Empty:                    # nothing arrived: silence at the clock's pace
-                    now = time.monotonic()
-                    if started is None or now - arrivals[-1][1] < args.gap:
-                        continue
-                    due = int((now - started) * SAMPLE_RATE) - received
-                    if due <= 0:
-                        continue
-                    item = (np.zeros(due, np.float32), now)
-                    stats["silence_fed_s"] += due / SAMPLE_RATE
-                if item is None:
-                    ended = True
-                    new = engine.mouth.flush()
-                else:
-                    block, at = item
-                    started = started if started is not None else at - len(block) / SAMPLE_RATE
-                    arrivals.append((received, at))
-                    received += len(block)
-                    heard.append(block)
-                    new = engine.mouth.push(block)
-                for k, _, lips in new:
-                    frame_arrival[k] = arrival(int(k * SAMPLE_RATE / fps))
-                    stats["shape_ms"].append(1000 * (time.monotonic() - frame_arrival[k]))
-                    behind = time.monotonic() - frame_arrival[k]
-                    if stats["frames"] and behind > args.max_behind:
-                        frames_q.put((k, None))          # falling behind: repeat the last frame, keep the clock
-                        stats["repeated"] += 1
-                    else:
-                        lips, search, sources = engine.plan(lips)
-                        frames_q.put((k, pool.submit(engine.frame, k, lips, search, sources)))
-                    stats["frames"] += 1
-            frames_q.put(None)
-            writer_thread.join()
-    finally:
-        if writer_thread.is_alive():
-            frames_q.put(None)
-    broken = any(isinstance(e, BrokenPipeError) for e in failure)
-    try:
-        if not broken:
-            writer.close()
-    except (BrokenPipeError, OSError):
-        broken = True
-    finally:
-        if tmp:
-            sink.close()
-    if failure and not broken:
-        if tmp:
-            tmp.unlink(missing_ok=True)
-        raise failure[0]
-    if broken:
-        if tmp:
-            tmp.unlink(missing_ok=True)
-        log.info("live: the consumer went away after %d frames: stopped", stats["frames"])
-        return stats
-    if tmp:
-        os.replace(tmp, out_path)
-    lat = np.asarray(stats["latency_ms"])
-    stats.update(audio_s=received / SAMPLE_RATE, video_s=stats["frames"] / fps,
-                 drift_frames=stats["frames"] - round(received / SAMPLE_RATE * fps),
-                 latency_median_ms=float(np.median(lat)) if len(lat) else None,
-                 latency_p95_ms=float(np.percentile(lat, 95)) if len(lat) else None,
-                 thread_ms_median={k: float(np.median(v)) for k, v in engine.thread_ms.items() if v},
-                 method=engine.tp.method, texture_px=engine.tp.T)
-    log.info("live: %d frames (%d repeated to keep up), %.1f s of audio; latency median %.0f ms, p95 %.0f ms; "
-             "video − audio = %d frames", stats["frames"], stats["repeated"], stats["audio_s"],
-             stats["latency_median_ms"] or 0, stats["latency_p95_ms"] or 0, stats["drift_frames"])
-    if args.stats:
-        Path(args.stats).write_text(json.dumps(stats, indent=1) + "\n")
     return stats
 
 

@@ -9,7 +9,8 @@ import av
 import numpy as np
 import pytest
 
-from lipsynth.live import AudioBuffer, DetailPicker, ping_pong
+from lipsynth.live import DetailPicker, ping_pong
+from lipsynth.live_stream import AudioBuffer
 from pipeline.audio.streaming_features import StreamingFeatures, causal_features
 from pipeline.errors import BadInputError, ParameterError
 from pipeline.io.live_io import StreamWriter, pcm_blocks, skip_wav_header
@@ -70,7 +71,7 @@ def test_streaming_features_refuse_bad_settings():
 
 
 def test_streaming_mouth_gives_one_shape_per_frame_and_refuses_other_families():
-    from pipeline.models.streaming_mouth import StreamingMouth, stream_mouth
+    from pipeline.models.streaming_mouth import stream_mouth
     x = speech_like(2.3, 4)
     lips = stream_mouth(x, MODEL, 25.0, past_s=1.0, ahead_s=0.2, hop_s=0.2)
     assert lips.shape == (round(2.3 * 25), 18, 2) and np.isfinite(lips).all()
