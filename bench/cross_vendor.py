@@ -33,7 +33,6 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 PROBES = ("whisper", "lstm", "karras", "opencv", "numpy", "x264")
 # the emulated CPUs have no AVX-512, while /proc/cpuinfo (which qemu-user does not emulate) shows the

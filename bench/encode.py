@@ -17,7 +17,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from pipeline.io import media                           # noqa: E402  (caps the SIMD level before NumPy loads)
 from bench.bench_results import publish, stamp          # noqa: E402

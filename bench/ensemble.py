@@ -14,17 +14,14 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from karras_grid import score
+from bench.karras_grid import score
 from pipeline.models.mouth_prediction import predict_mouth
 from pipeline.params import load_params
 from pipeline.io.store import open_group

@@ -17,19 +17,16 @@ import argparse
 import datetime
 import json
 import subprocess
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
-from live import cpu_name  # noqa: E402  (bench/live.py: the CPU's model name)
-from strangers import tracked_opening  # noqa: E402  (bench/strangers.py: the clip's tracked opening)
+from bench.live import cpu_name  # noqa: E402  (bench/live.py: the CPU's model name)
+from bench.strangers import tracked_opening  # noqa: E402  (bench/strangers.py: the clip's tracked opening)
 
 DATA = ROOT.parent / "shared" / "data"
 GROUPS = {"grid_s4": (DATA / "grid_s4", ROOT / "runs" / "s4cache"),

@@ -26,7 +26,6 @@ from pathlib import Path
 import psutil
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from pipeline.params import load_params  # noqa: E402
 from pipeline.io.store import stored_bytes  # noqa: E402

@@ -26,18 +26,15 @@ import datetime
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
 
-from base_model import run  # noqa: E402  (bench/base_model.py: one stage as a subprocess, its seconds)
+from bench.base_model import run  # noqa: E402  (bench/base_model.py: one stage as a subprocess, its seconds)
 from pipeline.models.base_model import MODEL_FILES, write_manifest  # noqa: E402
 from pipeline.params import as_dict, front_end_store, parse  # noqa: E402
 from stages.registry import PREPROCESSING  # noqa: E402

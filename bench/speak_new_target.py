@@ -22,16 +22,14 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
 
 from pipeline.io import media  # noqa: E402
-from synthesize import long_speech  # noqa: E402  (bench/synthesize.py)
+from bench.synthesize import long_speech  # noqa: E402  (bench/synthesize.py)
 
 SHARED = ROOT.parent / "shared" / "data"
 STEPS = [("ingest", "lipsynth.ingest INFO: stored"), ("landmarks", "lipsynth.landmarks INFO: valid"),

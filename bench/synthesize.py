@@ -32,12 +32,10 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
-import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 import pipeline  # noqa: E402,F401  (first: it sets the SIMD level every library reads when it loads)
 import numpy as np  # noqa: E402

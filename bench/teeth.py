@@ -15,10 +15,8 @@ and each is printed as output / target (goal: within ±20 %, i.e. 0.8–1.2).
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
 
 import cv2

@@ -30,7 +30,6 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 YARDSTICK = ROOT.parent / "shared" / "tools" / "lipsync_yardstick.py"
 ROWS = ["reencode_lossless", "reencode_crf", "own_texture", "oracle", "model"]
 
