@@ -14,6 +14,8 @@ STEM.pc2 (every frame's vertices: a point cache for Blender's Mesh Cache modifie
 STEM.glb + STEM.wav. ``--glb FILE.glb`` writes the glTF 2.0 binary (textured head, morph targets and
 a weights animation at --fps: plays in Blender, three.js, Unity, Unreal, <model-viewer>) with its audio
 beside it (FILE.wav), and FILE.html: a page playing it in three.js (orbit, synced to the audio).
+``--footage STORE`` (the frontalize store of the person's videos): the head blinks and turns as the
+person does in that footage (``--no-blinks``, ``--no-head-motion`` turn either off).
 """
 from __future__ import annotations
 
@@ -34,6 +36,11 @@ def main(argv=None) -> int:
                     help="also write the animated mesh: STEM.obj/.mtl/.png + STEM.pc2 point cache")
     ap.add_argument("--glb", default=None, metavar="FILE.glb",
                     help="also write the animated head as glTF 2.0 binary (+ FILE.wav audio, FILE.html viewer)")
+    ap.add_argument("--footage", default=None, metavar="STORE",
+                    help="the person's tracked footage (a frontalize store, e.g. store/frontalize.zarr): blink and "
+                         "turn the head as they do there (default: eyes open, head still)")
+    ap.add_argument("--no-blinks", action="store_true", help="with --footage: no blinks")
+    ap.add_argument("--no-head-motion", action="store_true", help="with --footage: the head stays still")
     ap.add_argument("--fps", type=float, default=25.0)
     ap.add_argument("--size", type=int, default=512, help="height of each view (px; default 512)")
     ap.add_argument("--emotion", default=None,
@@ -43,7 +50,8 @@ def main(argv=None) -> int:
     setup_logging(a.verbose)
 
     def go():
-        figures = render_mesh(a.audio, a.model, a.out, a.fps, a.size, emotion=a.emotion, export=a.export, glb=a.glb)
+        figures = render_mesh(a.audio, a.model, a.out, a.fps, a.size, emotion=a.emotion, export=a.export, glb=a.glb,
+                              footage=a.footage, blinks=not a.no_blinks, turns=not a.no_head_motion)
         if a.glb:
             write_viewer_page(a.glb)
         return figures

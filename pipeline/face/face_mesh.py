@@ -33,11 +33,49 @@ TEETH_HIDDEN_MM = 25.0                     #: how much deeper hidden teeth sit (
 
 @dataclass
 class HeadMotion:
-    """Per-frame positions of every part (mm): skin (T, N, 3), upper_teeth (T, Nu, 3), lower_teeth (T, Nl, 3)."""
+    """Per-frame positions of every part (mm): skin (T, N, 3), upper_teeth (T, Nu, 3), lower_teeth (T, Nl, 3),
+    in the head's own frame; the whole head turns by ``rotation`` (T, 3, 3) about ``pivot`` (3,) mm (None: still)."""
 
     skin: np.ndarray
     upper_teeth: np.ndarray
     lower_teeth: np.ndarray
+    rotation: np.ndarray | None = None
+    pivot: np.ndarray | None = None
+
+    def posed(self, points: np.ndarray, t=None) -> np.ndarray:
+        """Points in the head's frame → turned with the head: (N, 3) at frame ``t``, or (T, N, 3) at all frames."""
+        if self.rotation is None:
+            return points
+        r = self.rotation if t is None else self.rotation[t]
+        sub = "tij,tnj->tni" if t is None else "ij,nj->ni"
+        return np.einsum(sub, r, points - self.pivot) + self.pivot
+
+
+def with_footage(motion: HeadMotion, mesh: HeadMesh, surface: Surface, landmarks_mm: np.ndarray,
+                 closure: np.ndarray | None = None, rotation: np.ndarray | None = None) -> HeadMotion:
+    """``motion`` with blinks (``closure`` (T,) in [0, 1]) and a turning head (``rotation`` (T, 3, 3)).
+
+    Parameters
+    ----------
+    motion : HeadMotion
+        The speaking head (``animate``).
+    mesh : HeadMesh
+        The rest head.
+    surface : Surface
+        The face surface (depth of moved skin vertices).
+    landmarks_mm : ndarray
+        (68, 2) the rest landmarks (mm).
+    closure, rotation : ndarray or None
+        From ``pipeline.face.head_motion.footage_tracks``; None leaves the eyes open / the head still.
+    """
+    from pipeline.face.head_motion import blink_offsets, pivot
+    skin = motion.skin
+    if closure is not None:
+        xy = skin[..., :2].copy()
+        xy[..., 1] += np.asarray(closure)[:, None] * blink_offsets(mesh.skin.vertices[:, :2], landmarks_mm)[None]
+        skin = np.concatenate([xy, surface.z(xy[..., 0], xy[..., 1])[..., None]], axis=-1)
+    piv = None if rotation is None else pivot(landmarks_mm, float(surface.z(*landmarks_mm[30])))
+    return HeadMotion(skin, motion.upper_teeth, motion.lower_teeth, rotation, piv)
 
 
 def animate(mesh: HeadMesh, surface: Surface, head_landmarks: np.ndarray, point_ids, moved: np.ndarray,
@@ -130,6 +168,7 @@ class HeadRenderer:
             return m.compute_normals(split_vertices=False, consistent_normals=False, auto_orient_normals=False)
 
         self.skin, self.cavity = poly(mesh.skin), poly(mesh.cavity)
+        self.cavity_rest = mesh.cavity.vertices.astype(np.float64)
         self.upper, self.lower = poly(mesh.upper_teeth), poly(mesh.lower_teeth)
         tex = pv.Texture(np.ascontiguousarray(texture))      # pyvista puts image row 0 at v = 1
         tex.interpolate = True
@@ -161,10 +200,13 @@ class HeadRenderer:
 
     def render(self, motion: HeadMotion, t: int) -> np.ndarray:
         """Frame ``t`` of ``motion``: (size, 2·size, 3) uint8 RGB."""
-        self.skin.points = motion.skin[t]
-        self.upper.points = motion.upper_teeth[t]
-        self.lower.points = motion.lower_teeth[t]
-        for m in (self.skin, self.upper, self.lower):
+        self.skin.points = motion.posed(motion.skin[t], t)
+        self.upper.points = motion.posed(motion.upper_teeth[t], t)
+        self.lower.points = motion.posed(motion.lower_teeth[t], t)
+        turned = motion.rotation is not None
+        if turned:
+            self.cavity.points = motion.posed(self.cavity_rest, t)
+        for m in (self.skin, self.upper, self.lower) + ((self.cavity,) if turned else ()):
             m.compute_normals(inplace=True, split_vertices=False, consistent_normals=False, auto_orient_normals=False)
         self.plotter.render()
         return np.asarray(self.plotter.screenshot(return_img=True))[..., :3]

@@ -195,7 +195,7 @@ def build_glb(mesh, motion, texture: np.ndarray, fps: float, audio_name: str | N
     moving = [motion.skin, motion.upper_teeth, motion.lower_teeth]
     v = mesh.skin.vertices
     centre = np.array([v[:, 0].mean(), v[:, 1].mean(), np.median(v[:, 2])])
-    to_gl = lambda x: ((np.asarray(x, np.float64) - centre) * _AXES)     # noqa: E731
+    to_gl = lambda x: ((np.asarray(x, np.float64) - centre) * _AXES)
     sizes = np.cumsum([0] + [len(p.vertices) for p in parts])
     rest = np.concatenate([to_gl(p.vertices) for p in parts])
     frames = np.concatenate([to_gl(m) for m in moving], axis=1)
@@ -226,21 +226,38 @@ def build_glb(mesh, motion, texture: np.ndarray, fps: float, audio_name: str | N
                           extras={"targetNames": [f"speech_{i:02d}" for i in range(k)]}),
                    g.Mesh(name="mouth_cavity", primitives=[_primitive(blob, to_gl(mesh.cavity.vertices),
                                                                       mesh.cavity.triangles, None, 2)])]
-    gltf.nodes = [g.Node(name="head", mesh=0), g.Node(name="mouth_cavity", mesh=1)]
     T = len(anim.weights)
-    times = (np.arange(T, dtype=np.float32) / np.float32(fps)).astype(np.float32)
-    sampler = g.AnimationSampler(input=blob.accessor(times, "SCALAR", bounds=True),
-                                 output=blob.accessor(anim.weights.reshape(-1), "SCALAR"), interpolation="LINEAR")
-    gltf.animations = [g.Animation(name="speech", samplers=[sampler],
-                                   channels=[g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(
-                                       node=0, path="weights"))])]
-    gltf.scenes = [g.Scene(name="lipsynth head", nodes=[0, 1],
-                           extras={"fps": float(fps), "frames": T, "audio": audio_name})]
+    _animate(gltf, blob, anim.weights, motion, to_gl, fps)
+    gltf.scenes = [g.Scene(name="lipsynth head", nodes=[0], extras={"fps": float(fps), "frames": T, "audio": audio_name})]
     blob.data += b"\0" * (-len(blob.data) % 4)
     gltf.buffers = [g.Buffer(byteLength=len(blob.data))]
     gltf.set_binary_blob(bytes(blob.data))
     raw = b"".join(gltf.save_to_bytes())
     return raw, dict(morph_targets=k, max_error_mm=round(anim.max_error_mm, 4), frames=T, bytes=len(raw))
+
+
+def _animate(gltf, blob: _Blob, weights: np.ndarray, motion, to_gl, fps: float) -> None:
+    """Nodes ``lipsynth_head`` (turns about the neck pivot) → ``head`` (morphing), ``mouth_cavity``; the animation
+    ``speech``: the morph weights (T, K) and, when the head turns (``motion.rotation``), the root's rotation."""
+    import pygltflib as g
+    from scipy.spatial.transform import Rotation
+    T = len(weights)
+    piv = to_gl(motion.pivot) if motion.rotation is not None else np.zeros(3)
+    child = [float(c) for c in -piv]
+    gltf.nodes = [g.Node(name="lipsynth_head", children=[1, 2], translation=[float(c) for c in piv]),
+                  g.Node(name="head", mesh=0, translation=child), g.Node(name="mouth_cavity", mesh=1, translation=child)]
+    times = blob.accessor((np.arange(T) / fps).astype(np.float32), "SCALAR", bounds=True)
+    samplers = [g.AnimationSampler(input=times, output=blob.accessor(weights.reshape(-1).astype(np.float32), "SCALAR"),
+                                   interpolation="LINEAR")]
+    channels = [g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=1, path="weights"))]
+    if motion.rotation is not None:
+        flip = np.diag([1.0, -1.0, -1.0])                              # canonical axes → glTF axes (a rotation)
+        q = Rotation.from_matrix(flip @ motion.rotation @ flip).as_quat()          # (T, 4) x, y, z, w
+        q[np.cumsum(np.r_[0, (np.sum(q[1:] * q[:-1], 1) < 0)]) % 2 == 1] *= -1     # one hemisphere: no long way round
+        samplers.append(g.AnimationSampler(input=times, output=blob.accessor(q.astype(np.float32), "VEC4"),
+                                           interpolation="LINEAR"))
+        channels.append(g.AnimationChannel(sampler=1, target=g.AnimationChannelTarget(node=0, path="rotation")))
+    gltf.animations = [g.Animation(name="speech", samplers=samplers, channels=channels)]
 
 
 def write_wav(path, samples: np.ndarray, sample_rate: int = 16000) -> None:

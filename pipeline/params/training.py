@@ -118,6 +118,9 @@ class RenderMesh(Section):
     size: int = 512
     step_mm: float = 2.0
     emotion: int | str | None = None
+    footage: str = "store/frontalize.zarr"
+    blinks: bool = True
+    head_motion: bool = True
 
 
 @dataclass

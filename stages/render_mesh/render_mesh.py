@@ -26,7 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.errors import LipsynthError
-from pipeline.face import face_mesh, gltf_export, mesh_export
+from pipeline.face import face_mesh, gltf_export, head_motion, mesh_export
 from pipeline.face.canonical import Surface, TextureWindow
 from pipeline.face.dlib_face import LIP_POINTS
 from pipeline.face.head_mesh import HeadMesh, head_mesh, smooth_surface
@@ -90,8 +90,10 @@ class HeadAnimation:
     deform_ms: float                     # per frame
 
 
-def animate_head(audio: str, model: str, fps: float = 25.0, step_mm: float = 2.0, emotion=None) -> HeadAnimation:
-    """``model``'s speaker's head saying ``audio`` at ``fps``."""
+def animate_head(audio: str, model: str, fps: float = 25.0, step_mm: float = 2.0, emotion=None,
+                 footage: str | None = None, blinks: bool = True, turns: bool = True) -> HeadAnimation:
+    """``model``'s speaker's head saying ``audio`` at ``fps``; with ``footage`` (the frontalize store), it
+    blinks (``blinks``) and turns (``turns``) as the person does there (``pipeline.face.head_motion``)."""
     spk = speaker_head(model)
     check_emotion(model, emotion)
     samples = load_audio(audio)
@@ -101,18 +103,23 @@ def animate_head(audio: str, model: str, fps: float = 25.0, step_mm: float = 2.0
     t0 = time.perf_counter()
     deformer = face_mesh.deformer_for(mesh, spk.head_landmarks, ids)
     motion = face_mesh.animate(mesh, spk.surface, spk.head_landmarks, ids, moved, deformer)
+    if footage and (blinks or turns):
+        tracks = head_motion.footage_tracks(footage, len(moved), fps)
+        motion = face_mesh.with_footage(motion, mesh, spk.surface, spk.head_landmarks,
+                                        tracks.closure if blinks else None, tracks.rotation if turns else None)
     return HeadAnimation(spk, mesh, motion, samples, ids, moved, deformer.handles,
                          1000 * (time.perf_counter() - t0) / len(moved))
 
 
 def render_mesh(audio: str, model: str, out: str, fps: float = 25.0, size: int = 512, step_mm: float = 2.0,
-                emotion=None, create_folder: bool = False, export: str | None = None, glb: str | None = None) -> dict:
+                emotion=None, create_folder: bool = False, export: str | None = None, glb: str | None = None,
+                footage: str | None = None, blinks: bool = True, turns: bool = True) -> dict:
     """Render the animated head video (front | three-quarter view, audio muxed); returns timing figures.
 
     ``export``: also write the animated mesh there (OBJ + MTL + PNG texture + PC2 point cache,
     ``pipeline.face.mesh_export``, and ``export``.glb + .wav). ``glb``: the glTF 2.0 binary's path
     (default with ``export``: ``export``.glb), its audio beside it (same stem, .wav); checked writable
-    before any work.
+    before any work. ``footage``, ``blinks``, ``turns``: as ``animate_head``.
     """
     glb = glb or (f"{export}.glb" if export else None)
     if glb:
@@ -122,7 +129,7 @@ def render_mesh(audio: str, model: str, out: str, fps: float = 25.0, size: int =
         if not create_folder:
             raise LipsynthError(f"{out}: output folder {out_path.parent} does not exist")
         out_path.parent.mkdir(parents=True)
-    head = animate_head(audio, model, fps, step_mm, emotion)
+    head = animate_head(audio, model, fps, step_mm, emotion, footage, blinks, turns)
     mesh, motion = head.mesh, head.motion
     n = len(motion.skin)
     t1 = time.perf_counter()
@@ -136,7 +143,7 @@ def render_mesh(audio: str, model: str, out: str, fps: float = 25.0, size: int =
         renderer.close()
     t2 = time.perf_counter()
     if export:
-        mesh_export.write_animated_mesh(export, mesh.skin, motion.skin, head.speaker.head_texture, fps)
+        mesh_export.write_animated_mesh(export, mesh.skin, motion.posed(motion.skin), head.speaker.head_texture, fps)
     gltf = gltf_export.write_glb(glb, mesh, motion, head.speaker.head_texture, fps, head.samples) if glb else {}
     log.info("wrote %s: %d frames at %.3f fps, head %d vertices / %d triangles; deform %.1f ms/frame, render + "
              "encode %.1f ms/frame", out_path, n, fps, len(mesh.skin.vertices), len(mesh.skin.triangles), head.deform_ms,
@@ -152,7 +159,8 @@ def render_mesh(audio: str, model: str, out: str, fps: float = 25.0, size: int =
 def run(params) -> dict:
     r = params.render_mesh
     figures = render_mesh(params.synthesize.audio, r.model, r.out, r.fps, r.size, r.step_mm, r.emotion,
-                          create_folder=True, export=str(Path(r.export) / "head"))
+                          create_folder=True, export=str(Path(r.export) / "head"), footage=r.footage, blinks=r.blinks,
+                          turns=r.head_motion)
     write_timing("render_mesh", figures)
     return figures
 
