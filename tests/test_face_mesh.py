@@ -190,3 +190,13 @@ def test_no_pale_line_of_teeth_while_the_predicted_inner_lips_touch(head, monkey
     assert (parted > bright).sum() > 50
     dark = (touching < 60)[100:, 60:260]                              # the sliver is the dark cavity instead
     assert dark.sum() > 20
+
+
+def test_the_outline_runs_inside_the_jaw_contours_sides_but_keeps_the_chin(head):
+    _, _, lm, mesh = head
+    v = mesh.skin.vertices[:, :2]
+    for j, side in ((2, -1), (3, -1), (13, 1), (14, 1)):
+        row = v[np.abs(v[:, 1] - lm[j, 1]) < 1.5]
+        edge = row[:, 0].min() if side < 0 else row[:, 0].max()
+        assert side * (lm[j, 0] - edge) > 1.5, (j, edge, lm[j])        # a few mm in from the tracked contour
+    assert np.linalg.norm(v - lm[8], axis=1).min() < 2.0                 # the chin still covered

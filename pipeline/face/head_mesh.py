@@ -32,6 +32,7 @@ INNER_LIP_OPENING = [60, 61, 62, 63, 64, 65, 66, 67]
 STILL = [17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28, 36, 37, 38, 39, 40, 41, 42, 43, 44, 45, 46, 47]  # brows, nose bridge, eyes
 CAVITY_RGB, TEETH_RGB = (0.16, 0.04, 0.05), (0.93, 0.90, 0.82)
 TEETH_DEPTH_MM = 5.0               #: the teeth sit this far behind the skin surface wherever they move
+JAW_INSET_MM = 3.0                 #: the outline runs this far inside the tracked jaw contour's sides (mm)
 
 
 @dataclass
@@ -63,10 +64,18 @@ def smooth_surface(surface: Surface, sigma_mm: float = 4.0) -> Surface:
                    surface.step)
 
 
-def face_outline(landmarks_mm: np.ndarray, forehead_mm: float = 45.0, n_arc: int = 24) -> np.ndarray:
+def face_outline(landmarks_mm: np.ndarray, forehead_mm: float = 45.0, n_arc: int = 24,
+                 inset_mm: float = JAW_INSET_MM) -> np.ndarray:
     """(17 + n_arc, 2) polygon (mm): the jaw contour 0 → 16, then an elliptic arc back over the forehead
-    that rises ``forehead_mm`` above the brows."""
-    jaw = landmarks_mm[JAW]
+    that rises ``forehead_mm`` above the brows.
+
+    The jaw contour's sides are brought ``inset_mm`` towards the nose tip (fading to none at the chin, point 8):
+    the tracked contour sits on the silhouette, where the texture holds background as much as skin.
+    """
+    jaw = landmarks_mm[JAW].astype(np.float64).copy()
+    toward = landmarks_mm[30] - jaw
+    toward /= np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-9)
+    jaw += inset_mm * np.minimum(1.0, np.abs(np.arange(17) - 8) / 4.0)[:, None] * toward
     c = (jaw[0] + jaw[16]) / 2
     a = np.linalg.norm(jaw[16] - jaw[0]) / 2
     b = c[1] - (landmarks_mm[17:27, 1].min() - forehead_mm)
