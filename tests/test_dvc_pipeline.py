@@ -215,6 +215,9 @@ def test_render_mesh_stage_wrote_the_karras_face(project):
     cache = read_pc2(head / "head.pc2")
     assert cache.shape[0] == 250 and cache.shape[1] >= 4000
     assert sum(x.startswith("v ") for x in (head / "head.obj").read_text().splitlines()) == cache.shape[1]
+    from tests.helpers.gltf_validator import validate                  # the glTF head and its audio beside it
+    assert (head / "head.wav").is_file()
+    assert validate(head / "head.glb")["issues"]["numErrors"] == 0
 
 
 def assert_the_mouth_moves_and_the_brow_stays(frames: list) -> None:
