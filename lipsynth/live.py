@@ -182,9 +182,10 @@ def audio_source(args):
 
 
 def run(args, params: Params) -> dict:
-    model = args.model or params.synthesize.model
     if not Path(args.target).is_file():
         raise BadInputError(args.target, "target video file not found")
+    from pipeline.models.mouth_prediction import open_model
+    model = open_model(args.model or params.synthesize.model)     # checked once, passed on
     t0 = time.perf_counter()
     p, stores, entry, report = prepared(args.target, params, model, args.cache, prepared_only=True)
     engine = LiveEngine(p, stores, entry, args.target, model, args)

@@ -156,8 +156,8 @@ def run(args) -> dict:
     args.base = resolve_base(args.base)
     base_config = None
     if args.base:
-        from pipeline.models.model_folder import read_config
-        base_config = read_config(args.base)
+        from pipeline.models.mouth_prediction import open_model
+        base_config = open_model(args.base).config      # the base checked whole before any long work
     videos = [Path(v) for v in args.videos]
     footage: list[str] | str = [str(v) for v in videos]
     if len(videos) < FEW_VIDEOS:

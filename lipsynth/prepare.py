@@ -24,12 +24,11 @@ log = logging.getLogger("lipsynth.prepare")
 
 def prepare(target: str, params_file, model: str | None, cache: Path | None) -> dict:
     from lipsynth.live import prepared
-    from pipeline.models.mouth_prediction import check_model_folder
+    from pipeline.models.mouth_prediction import open_model
     params = load_params(params_file)
-    model = model or params.synthesize.model
     if not Path(target).is_file():
         raise BadInputError(target, "target video file not found")
-    check_model_folder(model)
+    model = open_model(model or params.synthesize.model)     # checked once, passed on
     t0 = time.perf_counter()
     p, _, entry, report = prepared(target, params, model, cache, prepared_only=False)
     seconds = time.perf_counter() - t0

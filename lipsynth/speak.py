@@ -47,7 +47,7 @@ from pipeline.errors import BadInputError, NoLipSyncError, ParameterError
 from pipeline.face.dlib_face import IOD_MM, LIP_POINTS, interocular
 from pipeline.face.geometry import rotation, rotation_angle_deg
 from pipeline.models.model_folder import load_speaker
-from pipeline.models.mouth_prediction import check_emotion, check_model_folder, load_audio, predict_mouth
+from pipeline.models.mouth_prediction import check_emotion, load_audio, open_model, predict_mouth
 from pipeline.io.parallel import SharedCluster, run_tasks
 from pipeline.io.store import open_group
 from pipeline.params import Params, load_params
@@ -326,7 +326,7 @@ def prepare(audio: str, target: str, params: Params, model: str | None = None, r
     model = model or params.synthesize.model
     samples = load_audio(audio)                # a bad audio file fails now, not after preprocessing,
     fps = probe_video(str(target), params.ingest, require_audio=False)["fps"]   # so does a target failing header checks
-    check_model_folder(model)                  # and a bad model folder (any family)
+    model = open_model(model)                  # and a bad model folder (any family): opened once, passed on
     check_emotion(model, emotion)              # and an emotion the model cannot take
     domain = audio_domain_check(samples, model, params, audio)
     # the mouth shapes depend on the audio, the model and the target's frame rate alone: predicted in a
@@ -338,7 +338,7 @@ def prepare(audio: str, target: str, params: Params, model: str | None = None, r
         with SharedCluster(params.cluster, warm_up=warm_up_worker) as cluster:   # one cluster for all preprocessing
             p, stores, entry, report = prepare_target(target, params, model, cache, cluster)
         report["audio_domain"] = domain
-        p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, model
+        p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, str(model)
         p.synthesize.emotion = emotion
         p.composite.diagnostic = diagnostic
         return Prepared(p, stores, entry, mouth.result() if entry["fps"] == fps else None, report)

@@ -19,10 +19,17 @@
         members/<k>/      each member's own files (any family above)
 
 All may also hold their speaker (speaker.npz, bank.zarr; ``pipeline/models/speaker_bank``).
+
+An application opens a folder once (``pipeline.models.mouth_prediction.open_model``: config read and the
+family's model checked) into a ``ModelFolder`` record and passes the record on; every function here that
+takes a folder takes the record too, and reads its config and speaker from it instead of from disk.
 """
 from __future__ import annotations
 
+import functools
 import json
+import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -57,9 +64,43 @@ def save_model(folder, model, config: dict, feature_mean, feature_std, basis: di
              pca_mean=basis["mean"], pca_components=basis["components"], **extra)
 
 
+@dataclass(frozen=True)
+class ModelFolder:
+    """A model folder opened and checked once (``mouth_prediction.open_model``).
+
+    Attributes
+    ----------
+    path : Path
+        the folder
+    config : dict
+        its config.json, read once
+    """
+    path: Path
+    config: dict
+
+    def __fspath__(self) -> str:            # a record goes wherever a folder path goes (Path(record), open, …)
+        return str(self.path)
+
+    def __str__(self) -> str:               # in messages and params: the folder's path
+        return str(self.path)
+
+    @property
+    def family(self) -> str:
+        """``lstm``, ``brand``, ``karras`` or ``ensemble``."""
+        return self.config["model"]
+
+    @functools.cached_property
+    def speaker(self) -> dict | None:
+        """``load_speaker`` of the folder, read on first use and kept."""
+        return _read_speaker(self.path)
+
+
 def read_config(folder) -> dict:
-    """config.json of a model folder of any family, checked for the family's files."""
-    folder = Path(folder)
+    """config.json of a model folder of any family, checked for the family's files (a ``ModelFolder``:
+    the config it holds)."""
+    if isinstance(folder, ModelFolder):
+        return folder.config
+    folder = Path(os.fspath(folder))
     if not (folder / "config.json").is_file():
         raise ModelError(f"{folder}: not a lipsynth model folder (no config.json) — run `dvc repro`")
     config = json.loads((folder / "config.json").read_text())
@@ -105,8 +146,8 @@ PUPPET_ARRAYS = ("startprob", "transmat", "face_means", "face_covars", "vocal_me
 
 def load_puppet(folder, expect_fingerprint: str | None = None) -> dict:
     """A Voice Puppetry model folder → puppet dict. Raises ModelError on any inconsistency."""
-    folder = Path(folder)
-    config = read_config(folder)
+    config = read_config(folder)               # a ModelFolder's own config, not read again
+    folder = Path(os.fspath(folder))
     if config["model"] != "brand":
         raise ModelError(f"{folder}: a {config['model']} model, not a Voice Puppetry (brand) model")
     with np.load(folder / "arrays.npz") as z:
@@ -146,10 +187,9 @@ def save_karras(folder, net, config: dict, arrays: dict) -> None:
 
 def load_karras(folder, device="cpu", expect_fingerprint: str | None = None) -> dict:
     """A Karras model folder → dict(net, config, and the arrays). Raises ModelError on any inconsistency."""
-    import torch
     from pipeline.models.karras_network import KarrasNetwork
-    folder = Path(folder)
     config = read_config(folder)
+    folder = Path(os.fspath(folder))
     if config["model"] != "karras":
         raise ModelError(f"{folder}: a {config['model']} model, not a Karras et al. (karras) model")
     with np.load(folder / "arrays.npz") as z:
@@ -170,22 +210,34 @@ def load_karras(folder, device="cpu", expect_fingerprint: str | None = None) -> 
         raise ModelError(f"{folder}: arrays.npz does not fit config.json ({n_out} outputs, emotion size {e_dim})")
     net = KarrasNetwork(n_out, e_dim)
     try:
-        net.load_state_dict(torch.load(folder / "weights.pt", map_location=device, weights_only=True))
+        net.load_state_dict(read_state_dict(folder / "weights.pt", device))
     except (RuntimeError, KeyError) as exc:
         raise ModelError(f"{folder}: weights.pt does not fit config.json ({str(exc).splitlines()[0]})") from None
     out.update(net=net.to(device).eval(), config=config)
     return out
 
 
+def read_state_dict(path: Path, device="cpu") -> dict:
+    """A torch state dict file (tensors only: ``weights_only``); ModelError naming the file when it is
+    damaged or not one (a truncated download, another file saved under its name)."""
+    import pickle
+
+    import torch
+    try:
+        return torch.load(path, map_location=device, weights_only=True)
+    except (pickle.UnpicklingError, EOFError, ValueError, RuntimeError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:160]
+        raise ModelError(f"{path}: damaged or not a PyTorch state dict ({first})") from None
+
+
 def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
     """Load a model folder → (model, config, arrays). Raises ModelError on any inconsistency."""
-    import torch
     from pipeline.models.delayed_lstm import DelayedLSTM
-    folder = Path(folder)
+    given, folder = folder, Path(os.fspath(folder))
     missing = [f for f in FILES if not (folder / f).exists()]
     if missing:
         raise ModelError(f"{folder}: not a lipsynth model folder (missing {', '.join(missing)}) — run `dvc repro train`")
-    config = read_config(folder)
+    config = read_config(given)
     if config["model"] != "lstm":
         raise ModelError(f"{folder}: a {config['model']} model folder, not an LSTM one")
     arrays = dict(np.load(folder / "arrays.npz"))
@@ -201,21 +253,28 @@ def load_model(folder, device="cpu", expect_fingerprint: str | None = None):
                          f"components) do not match the stored arrays")
     model = DelayedLSTM(config["n_features"], config["hidden"], k, config.get("layers", 1), bool(config.get("skip", False)))
     try:
-        model.load_state_dict(torch.load(folder / "weights.pt", map_location=device, weights_only=True))
+        model.load_state_dict(read_state_dict(folder / "weights.pt", device))
     except (RuntimeError, KeyError) as exc:
         raise ModelError(f"{folder}: weights.pt does not fit config.json ({str(exc).splitlines()[0]})") from None
     return model.to(device), config, arrays
 
 
 def load_speaker(folder) -> dict | None:
-    """The speaker a model folder was trained on, or None for a folder without one.
+    """The speaker a model folder was trained on, or None for a folder without one (a ``ModelFolder``:
+    the speaker it holds, read once).
 
     Returns dict(shape3d (68, 3) mm, identity (128,), identity_spread (F,), bank: the path of the
     candidate bank zarr (None when the folder has no bank); and, from folders written since the
     mesh render, surface_depth (H, W), surface_grid (3,), texture_window (4,); since the dense head,
     head_texture (H, W, 3), head_window (5,), head_landmarks (68, 2)). See ``pipeline/models/speaker_bank``.
     """
-    folder = Path(folder)
+    if isinstance(folder, ModelFolder):
+        return folder.speaker
+    return _read_speaker(Path(os.fspath(folder)))
+
+
+def _read_speaker(folder: Path) -> dict | None:
+    """speaker.npz (and the bank's path) of ``folder``, or None."""
     if not (folder / "speaker.npz").is_file():
         return None
     with np.load(folder / "speaker.npz") as z:

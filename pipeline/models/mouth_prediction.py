@@ -17,6 +17,8 @@ frame_time (T,) s, fps, pca_fingerprint.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from pipeline.audio import audio_features
@@ -24,7 +26,7 @@ from pipeline.audio import front_ends
 from pipeline.io import media
 from pipeline.errors import BadInputError, ParameterError
 from pipeline.models import model_ensemble, mouth_retrieval
-from pipeline.models.model_folder import check_model, read_config
+from pipeline.models.model_folder import ModelFolder, check_model, read_config
 from pipeline.models.mouth_pca import reconstruct
 
 MIN_SECONDS = 0.5
@@ -69,6 +71,16 @@ def check_model_folder(model_dir) -> dict:
     if read_config(model_dir)["model"] == "ensemble":
         return model_ensemble.check(model_dir)
     return check_model(model_dir)
+
+
+def open_model(model_dir) -> ModelFolder:
+    """A model folder of any family opened once: its config read, its model(s) loaded and checked
+    (``check_model_folder``; raises ModelError naming what is wrong). Pass the record on: the functions
+    taking a model folder read its config and speaker from it. A record given is returned as it is."""
+    if isinstance(model_dir, ModelFolder):
+        return model_dir
+    folder = Path(model_dir)
+    return ModelFolder(folder, check_model_folder(folder))
 
 
 def check_emotion(model_dir, emotion) -> None:

@@ -25,7 +25,7 @@ import torch
 from pipeline.audio import audio_features
 from pipeline.audio.streaming_features import RATE, StreamingFeatures
 from pipeline.errors import ParameterError
-from pipeline.models.model_folder import load_model, read_config
+from pipeline.models.model_folder import load_model, read_config, read_state_dict
 from pipeline.models.mouth_pca import reconstruct
 
 log = logging.getLogger("lipsynth.live")
@@ -48,7 +48,7 @@ def load_student(model, model_dir, stream: dict) -> bool:
         log.warning("%s: its live LSTM was taught with %s, this stream is %s: using the offline LSTM", model_dir,
                     taught, stream)
         return False
-    model.lstm.load_state_dict(torch.load(folder / "live.pt", map_location="cpu", weights_only=True))
+    model.lstm.load_state_dict(read_state_dict(folder / "live.pt"))
     log.info("live LSTM of %s (taught with the live front end: %s)", model_dir, taught)
     return True
 
