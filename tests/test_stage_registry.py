@@ -74,3 +74,15 @@ def test_no_other_python_file_spells_a_stage_module():
             if re.search(rf"['\"]{re.escape(s.module)}['\"]", text):
                 offenders.append(f"{f}: {s.module}")
     assert not offenders, offenders
+
+
+def test_the_stages_page_describes_exactly_the_registered_stages_in_order():
+    """docs/stages.md's table (the long description of each stage) rows = the registry, in order, each naming
+    its module's file as its entry point; its stage count and the README's agree with the registry."""
+    page = (ROOT / "docs" / "stages.md").read_text()
+    rows = re.findall(r"^\| `(\w+)` \| .* \| `([\w/]+\.py)`", page, re.M)
+    assert [name for name, _ in rows] == [s.name for s in registry.STAGES]
+    for (name, entry), s in zip(rows, registry.STAGES):
+        assert entry == s.module.replace(".", "/") + ".py", name
+    n = len(registry.STAGES)
+    assert f"holds {n} stages" in page and f"The {n} stages" in (ROOT / "README.md").read_text()
