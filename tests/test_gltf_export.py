@@ -66,6 +66,10 @@ def test_glb_passes_the_khronos_validator_with_its_audio_beside(glb):
     assert info["animationCount"] == 1 and info["hasMorphTargets"] and info["hasTextures"]
     assert figures["frames"] == T and figures["max_error_mm"] <= 0.1
     assert path.with_suffix(".wav").is_file() and not list(path.parent.glob(".*tmp*"))
+    import pygltflib
+    g = pygltflib.GLTF2.load(str(path))
+    w = g.accessors[g.animations[0].samplers[0].output]
+    assert w.min[0] >= 0 and w.max[0] <= 1                             # Blender clamps shape keys to 0–1
 
 
 def test_an_unwritable_glb_path_is_one_line_and_nothing_is_written(animated, tmp_path):

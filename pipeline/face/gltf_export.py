@@ -103,6 +103,33 @@ def morph_animation(rest: np.ndarray, frames: np.ndarray, triangles: np.ndarray,
     return MorphAnimation(basis.astype(np.float32), nb.astype(np.float32), w.astype(np.float32), float(err))
 
 
+def unit_weights(rest: np.ndarray, anim: MorphAnimation) -> tuple[np.ndarray, MorphAnimation]:
+    """The same motion with every weight in [0, 1] (Blender clamps shape-key values to their slider range,
+    0–1 unless the first key says otherwise): w = lo + (hi − lo) w', so the base mesh takes rest + Σ lo·B and
+    each target (hi − lo)·B.
+
+    Parameters
+    ----------
+    rest : ndarray
+        (M, 3) rest positions.
+    anim : MorphAnimation
+        From ``morph_animation``.
+
+    Returns
+    -------
+    tuple of (ndarray, MorphAnimation)
+        The base positions (M, 3) and the rescaled targets and weights (T, K) in [0, 1]; the mesh's default
+        weights should be frame 0's, so that a file read without its animation shows the first frame.
+    """
+    lo, hi = anim.weights.min(0), anim.weights.max(0)
+    span = np.maximum(hi - lo, 1e-12)
+    base = rest + np.einsum("k,kmc->mc", lo, anim.deltas)
+    w = np.clip((anim.weights - lo) / span, 0.0, 1.0)
+    return base, MorphAnimation((anim.deltas * span[:, None, None]).astype(np.float32),
+                                (anim.normals * span[:, None, None]).astype(np.float32), w.astype(np.float32),
+                                anim.max_error_mm)
+
+
 def _right_singular_vectors(a: np.ndarray, k: int) -> np.ndarray:
     """(≤ k, C) the leading right singular vectors of a (R, C), R ≪ C, through the R × R Gram matrix;
     directions with no motion (singular value below 1e-6 of the largest) are dropped (at least one is kept)."""
@@ -201,6 +228,7 @@ def build_glb(mesh, motion, texture: np.ndarray, fps: float, audio_name: str | N
     frames = np.concatenate([to_gl(m) for m in moving], axis=1)
     tris = np.concatenate([p.triangles + o for p, o in zip(parts, sizes[:-1])])
     anim = morph_animation(rest, frames, tris, tol_mm=tol_mm)
+    base, anim = unit_weights(rest, anim)
 
     gltf = g.GLTF2(asset=g.Asset(version="2.0", generator="lipsynth render-mesh (pygltflib)"), scene=0)
     blob = _Blob(gltf)
@@ -219,16 +247,17 @@ def build_glb(mesh, motion, texture: np.ndarray, fps: float, audio_name: str | N
     prims = []
     for i, p in enumerate(parts):
         sl = slice(sizes[i], sizes[i + 1])
-        prims.append(_primitive(blob, rest[sl], p.triangles, p.uv, 0 if i == 0 else 1,
+        prims.append(_primitive(blob, base[sl], p.triangles, p.uv, 0 if i == 0 else 1,
                                 (anim.deltas[:, sl], anim.normals[:, sl])))
     k = anim.weights.shape[1]
-    gltf.meshes = [g.Mesh(name="head", primitives=prims, weights=[0.0] * k,
+    gltf.meshes = [g.Mesh(name="head", primitives=prims, weights=[float(x) for x in anim.weights[0]],
                           extras={"targetNames": [f"speech_{i:02d}" for i in range(k)]}),
                    g.Mesh(name="mouth_cavity", primitives=[_primitive(blob, to_gl(mesh.cavity.vertices),
                                                                       mesh.cavity.triangles, None, 2)])]
     T = len(anim.weights)
     _animate(gltf, blob, anim.weights, motion, to_gl, fps)
-    gltf.scenes = [g.Scene(name="lipsynth head", nodes=[0], extras={"fps": float(fps), "frames": T, "audio": audio_name})]
+    gltf.scenes = [g.Scene(name="lipsynth head", nodes=[0],
+                           extras={"fps": float(fps), "frames": T, "audio": audio_name})]
     blob.data += b"\0" * (-len(blob.data) % 4)
     gltf.buffers = [g.Buffer(byteLength=len(blob.data))]
     gltf.set_binary_blob(bytes(blob.data))
@@ -245,10 +274,11 @@ def _animate(gltf, blob: _Blob, weights: np.ndarray, motion, to_gl, fps: float) 
     piv = to_gl(motion.pivot) if motion.rotation is not None else np.zeros(3)
     child = [float(c) for c in -piv]
     gltf.nodes = [g.Node(name="lipsynth_head", children=[1, 2], translation=[float(c) for c in piv]),
-                  g.Node(name="head", mesh=0, translation=child), g.Node(name="mouth_cavity", mesh=1, translation=child)]
+                  g.Node(name="head", mesh=0, translation=child),
+                  g.Node(name="mouth_cavity", mesh=1, translation=child)]
     times = blob.accessor((np.arange(T) / fps).astype(np.float32), "SCALAR", bounds=True)
-    samplers = [g.AnimationSampler(input=times, output=blob.accessor(weights.reshape(-1).astype(np.float32), "SCALAR"),
-                                   interpolation="LINEAR")]
+    out = blob.accessor(weights.reshape(-1, 1).astype(np.float32), "SCALAR", bounds=True)     # in [0, 1]
+    samplers = [g.AnimationSampler(input=times, output=out, interpolation="LINEAR")]
     channels = [g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=1, path="weights"))]
     if motion.rotation is not None:
         flip = np.diag([1.0, -1.0, -1.0])                              # canonical axes → glTF axes (a rotation)
