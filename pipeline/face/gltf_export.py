@@ -301,17 +301,20 @@ def write_wav(path, samples: np.ndarray, sample_rate: int = 16000) -> None:
 
 
 def check_writable(glb) -> Path:
-    """The ``.glb`` path, or a LipsynthError in one line when it cannot be written (checked before any work)."""
+    """The ``.glb`` path, or a LipsynthError in one line when it cannot be written (checked before any work:
+    its folder is created and a probe file written and removed there)."""
+    import tempfile
     path = Path(glb)
     if path.suffix.lower() != ".glb":
         raise LipsynthError(f"{glb}: a glTF binary path must end in .glb")
-    folder = path.absolute().parent
-    while not folder.exists():                       # the folders still to create go under the nearest existing one
-        folder = folder.parent
-    if path.is_dir() or not folder.is_dir():
-        raise LipsynthError(f"{glb}: cannot write the glTF file there ({folder} is not a folder)")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise LipsynthError(f"{glb}: cannot write the glTF file: folder {folder} is not writable")
+    if path.is_dir():
+        raise LipsynthError(f"{glb}: cannot write the glTF file there (a folder of that name exists)")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.stem}.probe"):
+            pass
+    except OSError as e:
+        raise LipsynthError(f"{glb}: cannot write the glTF file there ({e.strerror or e})") from None
     return path
 
 

@@ -63,7 +63,7 @@ def _runs(store) -> list[tuple[np.ndarray, np.ndarray, float]]:
     import zarr
     if not Path(store).exists():
         raise LipsynthError(f"{store}: no footage store for blinks and head motion (the frontalize stage writes it; "
-                            "set render_mesh.blinks and render_mesh.head_motion to false to go without)")
+                            "without it: render_mesh.blinks and .head_motion false, or no --footage)")
     g = zarr.open_group(str(store), mode="r")
     pose, valid, lm = (np.asarray(g[k][...]) for k in ("pose", "pose_valid", "frontal_landmarks"))
     out = []
