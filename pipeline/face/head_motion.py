@@ -74,13 +74,17 @@ def _runs(store) -> list[tuple[np.ndarray, np.ndarray, float]]:
         ok = valid[sl]
         if ok.mean() < 0.5:
             continue
-        t = np.arange(len(ok))
-        fill = lambda a: np.stack([np.interp(t, t[ok], a[ok, j]) for j in range(a.shape[1])], 1)   # noqa: E731
-        out.append((eye_aspect(fill(lm[sl].reshape(len(ok), -1)).reshape(-1, 68, 2)), fill(pose[sl, :3]),
+        out.append((eye_aspect(_fill(lm[sl].reshape(len(ok), -1), ok).reshape(-1, 68, 2)), _fill(pose[sl, :3], ok),
                     float(v.get("fps", 25.0))))
     if not out:
         raise LipsynthError(f"{store}: no video with a tracked pose in at least half of its frames")
     return out
+
+
+def _fill(a: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(n, C) values with the rows where ``ok`` is False interpolated from the valid ones (per column)."""
+    t = np.arange(len(ok))
+    return np.stack([np.interp(t, t[ok], a[ok, j]) for j in range(a.shape[1])], 1)
 
 
 def footage_tracks(store, n_frames: int, fps: float, smooth_frames: float = 1.5) -> FootageTracks:
