@@ -200,3 +200,40 @@ def test_the_outline_runs_inside_the_jaw_contours_sides_but_keeps_the_chin(head)
         edge = row[:, 0].min() if side < 0 else row[:, 0].max()
         assert side * (lm[j, 0] - edge) > 1.5, (j, edge, lm[j])        # a few mm in from the tracked contour
     assert np.linalg.norm(v - lm[8], axis=1).min() < 2.0                 # the chin still covered
+
+
+def fold_texture(window, lm, sides):
+    """Plain skin with a dark smile line 2.5 mm wide, 5 mm outside the nose wing → mouth corner, on ``sides`` (−1, +1)."""
+    import cv2
+    tex = np.full((window.height, window.width, 3), (200, 170, 150), np.uint8)
+    for s in sides:
+        ends = (lm[31 if s < 0 else 35] + [5.0 * s, 0.0], lm[48 if s < 0 else 54] + [5.0 * s, 3.0])
+        px = [tuple(np.round((p - [window.x0, window.y0]) / window.mm_per_px).astype(int).tolist()) for p in ends]
+        cv2.line(tex, px[0], px[1], (70, 50, 45), max(1, round(2.5 / window.mm_per_px)), cv2.LINE_AA)
+    return tex
+
+
+def test_the_three_quarter_view_draws_no_hard_streak_where_it_squeezes_the_far_cheek(head, monkeypatch):
+    """A smile line on each cheek (symmetric): the front view shows both as dark as each other; the three-quarter
+    view squeezes the far one (beside the nose, ∂z/∂x ≈ −1: ≈ 0.35 of its width), and it must not show there as a
+    line as dark as the near one — the hard dark fold of issue 50. The front view's texture is untouched."""
+    pytest.importorskip("pyvista")
+    monkeypatch.setenv("OFF_SCREEN", "True")
+    from pipeline.face.head_texture import turned_view_texture
+    surface, window, lm, mesh = head
+    skin = mesh.skin
+    plain = fold_texture(window, lm, (-1, 1))
+    assert np.array_equal(turned_view_texture(plain, skin.vertices, skin.triangles, skin.uv, 0.0), plain)
+    motion = face_mesh.HeadMotion(skin.vertices[None], mesh.upper_teeth.vertices[None], mesh.lower_teeth.vertices[None])
+    lum = []
+    for sides in ((), (-1,), (1,)):
+        r = face_mesh.HeadRenderer(mesh, fold_texture(window, lm, sides), 320)
+        try:
+            lum.append(r.render(motion, 0).astype(float).sum(-1))
+        finally:
+            r.close()
+    far, near = lum[0] - lum[1], lum[0] - lum[2]                    # how much each line darkens the render
+    assert far[:, :320].max() > 200 and near[:, :320].max() > 200     # front: both lines fully drawn
+    assert abs(far[:, :320].max() - near[:, :320].max()) < 40
+    assert near[:, 320:].max() > 200                                  # three-quarter: the near line still is ...
+    assert far[:, 320:].max() < 0.75 * near[:, 320:].max()            # ... the squeezed far one no hard streak

@@ -13,7 +13,9 @@ teeth; they come forward as the lips part (fully at ``TEETH_OPEN_MM``).
 Rendering needs an off-screen OpenGL: EGL (Mesa) with ``OFF_SCREEN=True`` and
 ``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow`` (set here before pyvista is imported). Normals are
 recomputed every frame (smooth shading), the skin is textured with the head texture (linear
-interpolation), two lights.
+interpolation), two lights. The three-quarter view's copy of the texture has its fine detail faded where
+that view squeezes the far cheek (``head_texture.turned_view_texture``: a frontal smile line there would
+show as a hard dark fold beside the nose); the front view's is the texture itself.
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ import numpy as np
 from pipeline.face.bilaplacian import BiLaplacian
 from pipeline.face.canonical import Surface
 from pipeline.face.head_mesh import TEETH_DEPTH_MM, HeadMesh, anchor_vertices, handle_vertices
+from pipeline.face.head_texture import turned_view_texture
 
 CHIN = 8
 TEETH_SHUT_MM, TEETH_OPEN_MM = 1.5, 3.0    #: inner-lip gap (mm): teeth hidden below the first, shown from the second
@@ -170,8 +173,14 @@ class HeadRenderer:
         self.skin, self.cavity = poly(mesh.skin), poly(mesh.cavity)
         self.cavity_rest = mesh.cavity.vertices.astype(np.float64)
         self.upper, self.lower = poly(mesh.upper_teeth), poly(mesh.lower_teeth)
-        tex = pv.Texture(np.ascontiguousarray(texture))      # pyvista puts image row 0 at v = 1
-        tex.interpolate = True
+        def pv_texture(image):
+            t = pv.Texture(np.ascontiguousarray(image))       # pyvista puts image row 0 at v = 1
+            t.interpolate = True
+            return t
+
+        skin = mesh.skin                   # the turned view's texture: detail faded where it squeezes the far cheek
+        textures = (pv_texture(texture), pv_texture(turned_view_texture(texture, skin.vertices, skin.triangles,
+                                                                        skin.uv, yaw_deg)))
         self.plotter = pv.Plotter(off_screen=True, shape=(1, 2), window_size=(2 * size, size), border=False,
                                   lighting="none")
         # no anti-aliasing: on a software OpenGL (llvmpipe, no GPU) pyvista's default 8× MSAA costs ~3× the
@@ -184,7 +193,7 @@ class HeadRenderer:
         for col, yaw in enumerate((0.0, yaw_deg)):
             self.plotter.subplot(0, col)
             self.plotter.set_background("black")
-            self.plotter.add_mesh(self.skin, texture=tex, smooth_shading=True, ambient=0.25, diffuse=0.8,
+            self.plotter.add_mesh(self.skin, texture=textures[col], smooth_shading=True, ambient=0.25, diffuse=0.8,
                                   specular=0.08, specular_power=12)
             self.plotter.add_mesh(self.cavity, color=CAVITY_RGB, smooth_shading=True, ambient=0.3, diffuse=0.6)
             for teeth in (self.upper, self.lower):
