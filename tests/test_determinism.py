@@ -19,10 +19,32 @@ def lowest_dispatch() -> dict:
     import cv2
     flags = cpu_flags()
     numpy_off = [g for g, needs in (("X86_V4", AVX512_SKX), ("X86_V3", {"avx2", "fma", "bmi2"})) if needs <= flags]
-    # e.g. "SSE SSE2 SSE3 *SSE4.1 *SSE4.2 *AVX *FP16 *AVX2 *AVX512-SKX?": * = dispatched, ? = off (absent or capped)
-    dispatched = [t[1:].rstrip("?").replace("-", "_") for t in cv2.getCPUFeaturesLine().split() if t.startswith("*")]
-    cv_off = [t for t in dispatched if t.startswith(("AVX", "FP16")) and (t != "AVX512_SKX" or AVX512_SKX <= flags)]
-    return {"NPY_DISABLE_CPU_FEATURES": " ".join(numpy_off), "OPENCV_CPU_DISABLE": ",".join(cv_off)}
+    return {"NPY_DISABLE_CPU_FEATURES": " ".join(numpy_off),
+            "OPENCV_CPU_DISABLE": ",".join(opencv_above_baseline(cv2.getCPUFeaturesLine(), flags))}
+
+
+def opencv_above_baseline(features_line: str, flags: set[str]) -> list[str]:
+    """OpenCV's dispatched levels above SSE4.2 that a CPU with ``flags`` has, named as OPENCV_CPU_DISABLE reads
+    them: its own spelling, "AVX512-SKX" (it ignores "AVX512_SKX" as an unknown feature, so an AVX-512 CPU kept
+    its AVX-512 kernels in the "lowest" run). ``features_line``: ``cv2.getCPUFeaturesLine()``, e.g. "SSE SSE2 SSE3
+    *SSE4.1 *SSE4.2 *AVX *FP16 *AVX2 *AVX512-SKX?" (* = dispatched, ? = off: absent or capped)."""
+    dispatched = [t[1:].rstrip("?") for t in features_line.split() if t.startswith("*")]
+    return [t for t in dispatched if t.startswith(("AVX", "FP16")) and (t != "AVX512-SKX" or AVX512_SKX <= flags)]
+
+
+def test_the_lowest_dispatch_names_opencv_features_as_opencv_reads_them():
+    """On an AVX-512 CPU the "lowest" run must turn OpenCV's AVX-512 kernels off too; OpenCV warns "unknown CPU
+    feature" for a name it does not know (and then keeps that level) and "unavailable" for one this CPU lacks."""
+    import subprocess
+    import sys
+    skx = {"avx", "avx2", "fma", "bmi2"} | AVX512_SKX
+    line = "SSE SSE2 SSE3 *SSE4.1 *SSE4.2 *AVX *FP16 *AVX2 *AVX512-SKX?"
+    names = opencv_above_baseline(line, skx)
+    assert names == ["AVX", "FP16", "AVX2", "AVX512-SKX"]
+    assert opencv_above_baseline(line, {"avx", "avx2", "fma"}) == ["AVX", "FP16", "AVX2"]
+    r = subprocess.run([sys.executable, "-c", "import cv2"], env={"OPENCV_CPU_DISABLE": ",".join(names)},
+                       capture_output=True, text=True, check=True)
+    assert "unknown CPU feature" not in r.stderr, r.stderr
 
 
 def highest_dispatch() -> dict:
