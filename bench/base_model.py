@@ -44,6 +44,22 @@ def person_params(main: dict, videos: str, folder: Path) -> dict:
     return as_dict(parse(tree, str(folder / "params.yaml")))
 
 
+def person_stores(main: dict, spec: str, people: Path) -> str:
+    """Preprocess ``spec`` (``NAME=VIDEOS``) with the main params into ``people/NAME/`` (stores kept when
+    they exist); the folder, for ``train.extra_corpora``."""
+    name, _, videos = spec.partition("=")
+    folder = (people / name).resolve()
+    folder.mkdir(parents=True, exist_ok=True)
+    pfile = folder / "params.yaml"
+    pfile.write_text(yaml.safe_dump(person_params(main, videos, folder), sort_keys=False))
+    for stage in PERSON_STAGES:
+        if (folder / f"{stage}.zarr").exists():
+            print(f"== {name} {stage}: exists, kept", flush=True)
+            continue
+        print(f"== {name} {stage}: {run(stage, pfile):.0f} s", flush=True)
+    return str(folder)
+
+
 def run(stage: str, params_file: Path) -> float:
     """Run the registered stage ``stage`` on ``params_file`` as a subprocess; its seconds."""
     t0 = time.perf_counter()
@@ -61,21 +77,10 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=None, help="training budget (default: the params file's)")
     a = ap.parse_args()
     main_params = yaml.safe_load(a.params.read_text())
-    folders = []
     for spec in a.person:
-        name, _, videos = spec.partition("=")
-        if not name or not videos:
+        if not all(spec.partition("=")[::2]):
             ap.error(f"--person {spec!r}: write NAME=VIDEOS")
-        folder = (a.out / "people" / name).resolve()
-        folder.mkdir(parents=True, exist_ok=True)
-        pfile = folder / "params.yaml"
-        pfile.write_text(yaml.safe_dump(person_params(main_params, videos, folder), sort_keys=False))
-        for stage in PERSON_STAGES:
-            if (folder / f"{stage}.zarr").exists():
-                print(f"== {name} {stage}: exists, kept", flush=True)
-                continue
-            print(f"== {name} {stage}: {run(stage, pfile):.0f} s", flush=True)
-        folders.append(str(folder))
+    folders = [person_stores(main_params, spec, a.out / "people") for spec in a.person]
     tree = yaml.safe_load(yaml.safe_dump(main_params))
     tree["train"].update(extra_corpora=folders, extra_repeat=a.repeat, baselines=False,
                          out=str((a.out / "model").resolve()), metrics=str((a.out / "train.json").resolve()),
