@@ -1,6 +1,12 @@
 import os
 from pathlib import Path
 
+# `pytest -n 2` runs two test processes that each drive torch on both cores (the demo's dvc repro beside the GRID
+# model's training): OpenMP's idle threads then spin and take the cores from the other process. Measured on
+# Karras' training step (2 cores): 0.8 s alone, 2.2 s each with two at once, 1.3 s each with passive waiting,
+# which changes no result (the work and its split are the same). Set before torch loads; stage subprocesses inherit it.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import cv2
 import pytest
 import skimage.data
