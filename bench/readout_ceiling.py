@@ -34,7 +34,9 @@ import numpy as np
 
 from pipeline.audio import front_ends
 from pipeline.io.store import open_group
-from pipeline.models.mouth_prediction import load_audio, predict_mouth
+from pipeline.models.mouth_prediction import load_audio
+
+from bench.strangers import model_corr, video_opening
 
 ROOT = Path(__file__).resolve().parents[1]
 ENC = {"window_s": 10.0, "overlap_s": 2.0}
@@ -49,12 +51,8 @@ def clips_of(landmarks: Path) -> list[dict]:
     for v in g.attrs["videos"]:
         if v.get("excluded"):
             continue
-        sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])
-        lm, ok = np.asarray(g["landmarks"][sl], np.float64), np.asarray(g["valid"][sl])
-        with np.errstate(invalid="ignore"):
-            opening = np.linalg.norm(lm[:, 62] - lm[:, 66], axis=1) / np.linalg.norm(lm[:, 36] - lm[:, 45], axis=1)
         path = Path(v["path"]) if Path(v["path"]).is_absolute() else (ROOT / v["path"]).resolve()
-        out.append(dict(name=v["name"], path=str(path), fps=float(v["fps"]), truth=np.where(ok, opening, np.nan)))
+        out.append(dict(name=v["name"], path=str(path), fps=float(v["fps"]), truth=video_opening(g, v)))
     return out
 
 
@@ -117,7 +115,8 @@ def main() -> None:
     people = {p: clips_of(a.people / p / "w" / "store" / "landmarks.zarr")
               for p in ("obama", "grid_s4", "lieu", "macron", "hdtf_aoc", "hdtf_hill")}
     print("clips: grid", len(grid), {k: len(v) for k, v in people.items()}, flush=True)
-    rows = {"base_lstm": {c["name"]: base_corr(c) for c in strangers}}
+    rows = {"base_lstm": {c["name"]: model_corr(Path(c["path"]), a.cache, str(ROOT / "models" / "base"))["corr"]
+                          for c in strangers}}
     sets = {
         "grid": grid,
         "grid+obama": grid + people["obama"],
@@ -146,15 +145,6 @@ def main() -> None:
                                      offsets_100hz=OFFS.tolist(), training_frames=frames, medians=medians, rows=rows),
                                 indent=1))
     print(f"wrote {a.out}")
-
-
-def base_corr(c) -> float:
-    """The shipped base's predicted opening (inner lip points 62–66) against the clip's tracked one, lag 0."""
-    lips = predict_mouth(load_audio(c["path"]), str(ROOT / "models" / "base"), c["fps"])["lip_points"]
-    p = np.linalg.norm(lips[:, 13] - lips[:, 16], axis=1)[:len(c["truth"])]
-    y = c["truth"][:len(p)]
-    m = np.isfinite(y)
-    return float(np.corrcoef(p[m], y[m])[0, 1])
 
 
 if __name__ == "__main__":

@@ -93,11 +93,17 @@ def tracked_opening(clip: Path, cache: Path) -> tuple[np.ndarray, float] | None:
         return None
     g = open_group(str(found[-1]))
     v = g.attrs["videos"][0]
+    return video_opening(g, v), float(v["fps"])
+
+
+def video_opening(g, v: dict) -> np.ndarray:
+    """(T,) inner-lip opening (landmarks 62–66) over the inter-ocular distance of video ``v`` (an entry of the
+    landmarks group ``g``'s ``videos``), NaN where untracked."""
     sl = slice(v["first_frame"], v["first_frame"] + v["n_frames"])
     lm, ok = np.asarray(g["landmarks"][sl], np.float64), np.asarray(g["valid"][sl])
     with np.errstate(invalid="ignore"):
         opening = np.linalg.norm(lm[:, 62] - lm[:, 66], axis=1) / np.linalg.norm(lm[:, 36] - lm[:, 45], axis=1)
-    return np.where(ok, opening, np.nan), float(v["fps"])
+    return np.where(ok, opening, np.nan)
 
 
 def model_corr(clip: Path, cache: Path, model: str) -> dict | None:
