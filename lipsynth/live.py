@@ -159,11 +159,11 @@ class LiveEngine:
 def prepared(target: str, params: Params, model: str, cache: Path | None, prepared_only: bool):
     """The target's stores (``speak.prepare_target``), preprocessing only when allowed."""
     from lipsynth.speak import prepare_target
-    from lipsynth.target import warm_up_worker
+    from lipsynth.target import target_cluster, warm_up_worker
     from pipeline.io.parallel import SharedCluster
     if prepared_only:
         return prepare_target(target, params, model, cache, None, prepared_only=True)
-    with SharedCluster(params.cluster, warm_up=warm_up_worker) as cluster:
+    with SharedCluster(target_cluster(params.cluster, target), warm_up=warm_up_worker) as cluster:
         return prepare_target(target, params, model, cache, cluster)
 
 

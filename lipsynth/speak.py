@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lipsynth.target import default_cache, landmarked_target, preprocess_target, warm_up_worker
+from lipsynth.target import default_cache, landmarked_target, preprocess_target, target_cluster, warm_up_worker
 from pipeline.audio import front_ends
 from pipeline.face import identity
 from pipeline.errors import BadInputError, NoLipSyncError, ParameterError
@@ -335,7 +335,7 @@ def prepare(audio: str, target: str, params: Params, model: str | None = None, r
     mouth = predicting.submit(predict_mouth, samples, model, fps, device=params.synthesize.device, source=str(audio),
                               emotion=emotion)
     try:
-        with SharedCluster(params.cluster, warm_up=warm_up_worker) as cluster:   # one cluster for all preprocessing
+        with SharedCluster(target_cluster(params.cluster, target), warm_up=warm_up_worker) as cluster:   # one for all
             p, stores, entry, report = prepare_target(target, params, model, cache, cluster)
         report["audio_domain"] = domain
         p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, str(model)

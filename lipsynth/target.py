@@ -9,6 +9,7 @@ only place the preprocessing chain of a single target is written down.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import json
 import logging
@@ -29,6 +30,9 @@ CACHE_FORMAT = 7          # bump when the preprocessing code changes what it sto
                           # 7: 3D models whose lips were fitted as depth rejected)
 FRONTALIZE_FORMAT = 3     # bump when only frontalize changes what it stores (ingest and landmarks are kept)
                           # (2, 3: a factorisation that is no face, or stretched in depth, falls back to the depth prior)
+IN_PROCESS_MAX_FRAMES = 300   # a target this short is preprocessed in this process, without a LocalCluster: starting
+                              # its worker processes (imports, dlib's models in each) costs more than they save
+                              # (bench/target_cluster.py, results/target_cluster.json)
 
 
 def warm_up_worker() -> None:
@@ -42,6 +46,25 @@ def warm_up_worker() -> None:
     dlib_face.detector()
     dlib_face.predictor()
     identity.recogniser()
+
+
+def cluster_for_frames(cluster, n_frames: int):
+    """The ``cluster`` params to preprocess a target of ``n_frames`` frames with: ``cluster`` itself when it
+    asks for workers (``cluster.address`` or ``cluster.n_workers`` set) or for a long target; a copy with
+    ``address: in-process`` for a target of at most ``IN_PROCESS_MAX_FRAMES`` frames on the default
+    LocalCluster. The stores are the same bytes either way."""
+    if cluster.address or cluster.n_workers is not None or n_frames > IN_PROCESS_MAX_FRAMES:
+        return cluster
+    log.info("target of %d frames: preprocessed in this process (a LocalCluster pays off above %d frames)",
+             n_frames, IN_PROCESS_MAX_FRAMES)
+    return dataclasses.replace(cluster, address=IN_PROCESS)
+
+
+def target_cluster(cluster, video) -> object:
+    """``cluster_for_frames`` for ``video``, its length read from the header (frames, else duration × rate)."""
+    from pipeline.io import media
+    info = media.probe(video)
+    return cluster_for_frames(cluster, max(info.n_frames, int(info.duration * info.fps)))
 
 
 def default_cache() -> Path:

@@ -59,3 +59,33 @@ def test_local_workers_keep_glibcs_malloc_defaults():
     with client_for(Cluster(n_workers=1)) as client:
         assert client.submit(_worker_malloc_trim, pure=False).result() is None
     assert dict(dask.config.get(SPAWN_ENVIRON)) == before
+
+
+def test_a_short_target_skips_the_local_cluster_unless_workers_are_asked_for(tmp_path):
+    """``lipsynth.target``: a target of at most IN_PROCESS_MAX_FRAMES frames is preprocessed in process on the
+    default cluster params; a longer one, a scheduler address or an explicit worker count keep the cluster; the
+    caller's params are not changed. The length comes from the file's header."""
+    from lipsynth.target import IN_PROCESS_MAX_FRAMES, cluster_for_frames, target_cluster
+    from tests.helpers.media import make_clip
+    default = Cluster()
+    assert cluster_for_frames(default, IN_PROCESS_MAX_FRAMES).address == IN_PROCESS
+    assert default.address is None
+    assert cluster_for_frames(default, IN_PROCESS_MAX_FRAMES + 1) is default
+    assert cluster_for_frames(Cluster(n_workers=2), 10).address is None
+    assert cluster_for_frames(Cluster(address="tcp://10.0.0.1:8786"), 10).address == "tcp://10.0.0.1:8786"
+    clip = tmp_path / "clip.mp4"
+    make_clip(clip, n_frames=30)
+    assert target_cluster(default, clip).address == IN_PROCESS
+
+
+def test_the_in_process_bound_is_the_one_the_bench_measured_below():
+    """results/target_cluster.json (bench/target_cluster.py) was measured with today's bound, and every target
+    it measured at or below the bound prepared at least as fast in process as on the LocalCluster."""
+    import json
+    from lipsynth.target import IN_PROCESS_MAX_FRAMES
+    from tests.conftest import ROOT
+    res = json.loads((ROOT / "results" / "target_cluster.json").read_text())
+    assert res["in_process_max_frames"] == IN_PROCESS_MAX_FRAMES
+    short = [r for r in res["targets"] if r["frames"] <= IN_PROCESS_MAX_FRAMES]
+    assert len(short) >= 3
+    assert all(r["in_process"]["median_s"] <= r["local_cluster"]["median_s"] for r in short), short

@@ -4,6 +4,7 @@ import sys
 
 import numpy as np
 import pytest
+import yaml
 
 from pipeline.params import load_params
 from tests.conftest import ROOT, shared
@@ -111,9 +112,13 @@ def test_a_video_corrupt_mid_file_is_one_line_without_dask_shutdown_noise(tmp_pa
     data[len(data) // 2:len(data) // 2 + 20000] = np.random.default_rng(0).integers(0, 256, 20000, np.uint8).tobytes()
     target.write_bytes(bytes(data))
     out = tmp_path / "o.mp4"
+    tree = yaml.safe_load((ROOT / "params.yaml").read_text())
+    tree["cluster"]["n_workers"] = 2          # workers asked for: a 200-frame target would otherwise run in process
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(tree))
     r = subprocess.run([sys.executable, "-m", "lipsynth.cli", "speak", "--audio", shared("hdtf", "RD_Radio31_000.wav"),
-                        "--target", target, "--out", out, "--model", ROOT / "models" / "base", "--cache", tmp_path / "c"],
-                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+                        "--target", target, "--out", out, "--model", ROOT / "models" / "base", "--cache", tmp_path / "c",
+                        "--params", tmp_path / "params.yaml"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert "starting LocalCluster" in r.stderr, r.stderr[-2000:]
     line = one_error_line(r)
     assert str(target) in line and "corrupt" in line
     assert not [line for line in r.stderr.splitlines() if "distributed" in line or "WARNING" in line], r.stderr
