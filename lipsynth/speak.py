@@ -48,7 +48,7 @@ from pipeline.face.dlib_face import IOD_MM, LIP_POINTS, interocular
 from pipeline.face.geometry import rotation, rotation_angle_deg
 from pipeline.models.model_folder import load_speaker
 from pipeline.models.mouth_prediction import check_emotion, load_audio, open_model, predict_mouth
-from pipeline.io.parallel import SharedCluster, run_tasks
+from pipeline.io.parallel import IN_PROCESS, SharedCluster, run_tasks
 from pipeline.io.store import open_group
 from pipeline.params import Params, load_params
 from pipeline.io.runner import run_main, setup_logging
@@ -63,7 +63,7 @@ def target_identity(p: Params, n_frames: int, cluster: SharedCluster | None = No
     """Median face descriptor (128,) of the preprocessed target (its ingest + landmarks stores).
 
     The descriptors (≈ 0.1 s of CPU each) are computed on the workers of ``cluster`` when it is
-    running (the target was just preprocessed on it), else here.
+    running (the target was just preprocessed on it), else here (also for an in-process ``cluster``).
     """
     src, lmg = open_group(p.ingest.out), open_group(p.landmarks.out)
     v = lmg.attrs["videos"][0]
@@ -71,7 +71,7 @@ def target_identity(p: Params, n_frames: int, cluster: SharedCluster | None = No
     frames = identity.sampled_frames(np.asarray(lmg["valid"][...]), n_frames)
     if not len(frames):
         return None
-    if cluster is not None and cluster.running:
+    if cluster is not None and cluster.running and cluster.cluster.address != IN_PROCESS:
         with cluster.client() as client:
             n = max(1, min(len(frames), len(client.scheduler_info()["workers"])))
             parts = np.array_split(frames, n)

@@ -55,8 +55,8 @@ def cluster_for_frames(cluster, n_frames: int):
     LocalCluster. The stores are the same bytes either way."""
     if cluster.address or cluster.n_workers is not None or n_frames > IN_PROCESS_MAX_FRAMES:
         return cluster
-    log.info("target of %d frames: preprocessed in this process (a LocalCluster pays off above %d frames)",
-             n_frames, IN_PROCESS_MAX_FRAMES)
+    log.info("target of %d frames: preprocessed in this process (no LocalCluster up to %d frames: "
+             "lipsynth.target.IN_PROCESS_MAX_FRAMES)", n_frames, IN_PROCESS_MAX_FRAMES)
     return dataclasses.replace(cluster, address=IN_PROCESS)
 
 
