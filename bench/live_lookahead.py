@@ -24,6 +24,8 @@ import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one 
 
 import numpy as np
 
+from pipeline.audio.streaming_features import STREAM
+
 ROOT = Path(__file__).resolve().parents[1]
 from bench.live import cpu_name  # noqa: E402  (bench/live.py: the CPU's model name)
 from bench.strangers import tracked_opening  # noqa: E402  (bench/strangers.py: the clip's tracked opening)
@@ -98,9 +100,9 @@ def plot(result: dict, path: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ahead", type=float, nargs="+", default=[0.0, 0.1, 0.2, 0.3, 0.5])
-    ap.add_argument("--past", type=float, default=1.5)
-    ap.add_argument("--hop", type=float, default=0.2)
-    ap.add_argument("--pad", type=float, default=2.0)
+    ap.add_argument("--past", type=float, default=STREAM["past_s"])
+    ap.add_argument("--hop", type=float, default=STREAM["hop_s"])
+    ap.add_argument("--pad", type=float, default=STREAM["pad_s"])
     ap.add_argument("--model", default="models/base")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "live_lookahead.json")
     a = ap.parse_args()

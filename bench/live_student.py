@@ -30,6 +30,8 @@ import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one 
 import numpy as np
 import torch
 
+from pipeline.audio.streaming_features import STREAM
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 
@@ -82,10 +84,10 @@ def loss_of(student, x, h, y):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", type=Path, default=ROOT / "models" / "base")
-    ap.add_argument("--past", type=float, default=1.5)
-    ap.add_argument("--ahead", type=float, default=0.2)
-    ap.add_argument("--hop", type=float, default=0.2)
-    ap.add_argument("--pad", type=float, default=2.0)
+    ap.add_argument("--past", type=float, default=STREAM["past_s"])
+    ap.add_argument("--ahead", type=float, default=STREAM["ahead_s"])
+    ap.add_argument("--hop", type=float, default=STREAM["hop_s"])
+    ap.add_argument("--pad", type=float, default=STREAM["pad_s"])
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args()

@@ -6,8 +6,10 @@ changed are rerun); the subcommands run one stage by hand with the same params f
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
+from pipeline.simd_level import cap_for, cpu_flags
 from stages.registry import STAGES
 
 # the applications; the stages' subcommands come from the stage registry (stages/registry.py)
@@ -25,6 +27,24 @@ APPLICATIONS = {
     "personalize": ("lipsynth.personalize", "a new person's footage (~1 min) → a model folder for speak (fine-tunes a base model)"),
 }
 COMMANDS = {**{s.command: (s.module, s.description) for s in STAGES if s.command}, **APPLICATIONS}
+NUMERIC_LIBRARIES = ("numpy", "torch", "ctranslate2", "cv2", "av", "scipy")
+
+
+def lift_simd_cap(environ=os.environ, loaded=None, flags: set[str] | None = None) -> bool:
+    """Undo ``pipeline.simd_level``'s cap (as ``LIPSYNTH_SIMD=native`` would have) while no numeric library has
+    loaded (``loaded``: the modules imported so far, default ``sys.modules``); True when lifted. A variable of
+    the cap holding another value than the cap's is kept, and so is all of it when ``LIPSYNTH_SIMD`` is set.
+
+    For ``live``: a stream that repeats a frame when the machine falls behind is not reproducible to the byte,
+    and the cap costs it latency (the Whisper encoder on MKL's compatible branch: docs/simd_cost.md)."""
+    loaded = sys.modules if loaded is None else loaded
+    if "LIPSYNTH_SIMD" in environ or any(name in loaded for name in NUMERIC_LIBRARIES):
+        return False
+    for k, v in cap_for(cpu_flags() if flags is None else flags).items():
+        if environ.get(k) == v:
+            del environ[k]
+    environ["LIPSYNTH_SIMD"] = "native"
+    return True
 
 
 def usage() -> str:
@@ -46,6 +66,8 @@ def main(argv=None) -> int:
     if name not in COMMANDS:
         print(f"lipsynth: error: unknown command '{name}'\n\n{usage()}", file=sys.stderr)
         return 2
+    if name == "live":
+        lift_simd_cap()     # a live stream depends on timing, not reproducible to the byte: every library at full speed
     return importlib.import_module(COMMANDS[name][0]).main(rest)
 
 

@@ -23,6 +23,10 @@ writes each frame's latency (an audio sample's arrival → its frame leaving).
 
 The self-check of ``speak`` (dlib re-reading every frame) is not run live: it needs frames after the
 one it judges and costs a core's share; the target's 3D fit is checked before streaming starts.
+
+Run as ``lipsynth live``, every numeric library runs at the CPU's full width (``LIPSYNTH_SIMD=native``): a live
+stream repeats frames as timing dictates, so it has no bytes to keep the same across machines, and the AVX2
+cap slows its Whisper encoder 2–3×. Set ``LIPSYNTH_SIMD`` (to anything) to keep the cap.
 """
 from __future__ import annotations
 
@@ -37,6 +41,7 @@ import cv2
 import numpy as np
 
 from lipsynth.live_stream import STOP, stream
+from pipeline.audio.streaming_features import STREAM
 from pipeline.errors import BadInputError
 from pipeline.io.live_io import paced_file, pcm_blocks
 from pipeline.io.runner import run_main, setup_logging
@@ -122,6 +127,23 @@ class LiveEngine:
         self.detail = DetailPicker(self.tp.pool, p.synthesize.detail_switch_cost) \
             if self.tp.method == "two_band" else None
         self.thread_ms = dict(texture=[], composite=[], encode=[])      # per frame, thread time
+        self.warm_geometry(args.threads)
+
+    def warm_geometry(self, threads: int) -> None:
+        """Each target frame's geometry (masks, colour statistics, ray map: ≈ 5 ms a 720p frame), made before the
+        stream starts, in the order the first ping-pong pass shows them, as far as the cache holds them. Made on
+        demand instead, the first pass through the target costs every frame that much more, while the stream
+        is already running."""
+        from concurrent.futures import ThreadPoolExecutor
+        cache, T, shape = self.tgt.geometry, self.tp.T, (*self.frames.shape, 3)
+        todo = [j for j in range(len(self.frames)) if self.tgt.pose_ok[j]]
+
+        if not todo:
+            return
+        each = cache.get(self.tgt, todo[0], T, self.p.composite, shape).nbytes
+        todo = todo[1:max(1, int(cache.budget // max(each, 1)))]
+        with ThreadPoolExecutor(max(1, threads)) as pool:
+            list(pool.map(lambda j: cache.get(self.tgt, j, T, self.p.composite, shape), todo))
 
     def reference_lips(self, target: str, model: str) -> np.ndarray:
         """Predicted lips of the target's own audio (the spread the re-targeting widens); the model's mean
@@ -217,10 +239,14 @@ def main(argv=None) -> int:
                          "sound; implies --hls (a temporary folder unless given); serves on after the audio ends, "
                          "until Ctrl-C")
     ap.add_argument("--model", default=None, help="LSTM model folder (default: synthesize.model of the params file)")
-    ap.add_argument("--past", type=float, default=1.5, help="seconds of audio before the new frames each window sees")
-    ap.add_argument("--ahead", type=float, default=0.2, help="look-ahead (s): latency bought for lip sync")
-    ap.add_argument("--hop", type=float, default=0.2, help="new audio (s) per front-end window")
-    ap.add_argument("--pad", type=float, default=2.0, help="whisper windows are padded with silence to this (s)")
+    ap.add_argument("--past", type=float, default=STREAM["past_s"],
+                    help="seconds of audio before the new frames each window sees (default %(default)s)")
+    ap.add_argument("--ahead", type=float, default=STREAM["ahead_s"],
+                    help="look-ahead (s): latency bought for lip sync (default %(default)s)")
+    ap.add_argument("--hop", type=float, default=STREAM["hop_s"], help="new audio (s) per front-end window: a "
+                    "frame waits for its hop's end, so half of it adds to the median latency (default %(default)s)")
+    ap.add_argument("--pad", type=float, default=STREAM["pad_s"],
+                    help="whisper windows are padded with silence to this (s) (default %(default)s)")
     ap.add_argument("--threads", type=int, default=2, help="frame workers (texture + composite)")
     ap.add_argument("--preset", default="ultrafast", help="x264 preset of the stream (default ultrafast: the least "
                     "CPU per frame, more bits)")

@@ -126,3 +126,32 @@ def test_importing_pipeline_turns_numpys_huge_pages_off():
     env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
     out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"                    # the setting it had: off
+
+
+def test_live_lifts_the_cap_only_before_a_numeric_library_loads_and_never_over_a_user():
+    """``lipsynth live`` (timing decides its frames, so no byte to keep) undoes the cap; a value the user set, or
+    ``LIPSYNTH_SIMD`` set to anything, is kept; once NumPy or another numeric library has loaded it is too late."""
+    from lipsynth.cli import lift_simd_cap
+    capped = dict(cap_for(SKX), MKL_CBWR="AUTO", HOME="/home/u")          # MKL_CBWR: the user's own value
+    env = dict(capped)
+    assert lift_simd_cap(env, loaded={}, flags=SKX)
+    assert env == {"MKL_CBWR": "AUTO", "HOME": "/home/u", "LIPSYNTH_SIMD": "native"}
+    for loaded, extra in (({"numpy": None}, {}), ({"ctranslate2": None}, {}), ({}, {"LIPSYNTH_SIMD": "avx2"})):
+        env = dict(capped, **extra)
+        assert not lift_simd_cap(env, loaded=loaded, flags=SKX) and env == dict(capped, **extra)
+
+
+def test_the_live_command_runs_uncapped_and_speak_capped():
+    probe = ("import os, sys\nfrom lipsynth import cli\nfrom pipeline.simd_level import cap_for, cpu_flags\n"
+             "try:\n    cli.main([sys.argv[1], '--help'])\nexcept SystemExit:\n    pass\n"
+             "print('CAPPED', sorted(k for k, v in cap_for(cpu_flags()).items() if os.environ.get(k) == v), "
+             "os.environ.get('LIPSYNTH_SIMD'))\n")
+    env = {k: v for k, v in os.environ.items() if k not in AVX2_CAP and k != "LIPSYNTH_SIMD"}
+    lines = {}
+    for command in ("live", "speak"):
+        r = subprocess.run([sys.executable, "-c", probe, command], cwd=ROOT, env=env, capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr[-2000:]
+        lines[command] = r.stdout.strip().splitlines()[-1]
+    cap = sorted(cap_for(cpu_flags()))
+    assert lines["live"] == "CAPPED [] native"
+    assert lines["speak"] == f"CAPPED {cap} None"

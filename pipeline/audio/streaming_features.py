@@ -27,6 +27,11 @@ from pipeline.errors import ParameterError
 RATE = SAMPLE_RATE // HOP                       #: frames per second (100)
 TARGET_DBFS, MAX_GAIN_DB = -23.0, 40.0          #: as ``audio_features.rms_normalize``
 MIN_GAIN_SECONDS = 0.5                          #: the running gain waits for this much audio (unity before)
+#: the stream settings (s) ``lipsynth live`` runs by default and the shipped live LSTM was taught with
+#: (``bench/live_student.py``): each window sees ``past_s`` before its new frames, ``hop_s`` of them and
+#: ``ahead_s`` after, padded to ``pad_s``. A hop of 0.1 s rather than 0.2 s takes 50 ms off the median latency
+#: (a frame waits for the end of its hop) for twice the encoder's work (docs/live_figures.md).
+STREAM = dict(past_s=1.5, ahead_s=0.2, hop_s=0.1, pad_s=2.0)
 
 
 class StreamingFeatures:
@@ -47,8 +52,9 @@ class StreamingFeatures:
         Whisper pads its windows; the states just before an unpadded window's end follow the lips far less).
     """
 
-    def __init__(self, front_end: str, encoder: dict | None = None, past_s: float = 1.5, ahead_s: float = 0.2,
-                 hop_s: float = 0.2, utterance_norm: bool = False, pad_s: float = 2.0):
+    def __init__(self, front_end: str, encoder: dict | None = None, past_s: float = STREAM["past_s"],
+                 ahead_s: float = STREAM["ahead_s"], hop_s: float = STREAM["hop_s"], utterance_norm: bool = False,
+                 pad_s: float = STREAM["pad_s"]):
         front_ends.check(front_end)
         if not (past_s >= 0 and ahead_s >= 0 and hop_s > 0):
             raise ParameterError(f"streaming front end: past_s={past_s}, ahead_s={ahead_s} must be ≥ 0 and "
@@ -156,8 +162,9 @@ class StreamingFeatures:
         return x.astype(np.float32)
 
 
-def causal_features(samples: np.ndarray, front_end: str, encoder: dict | None = None, past_s: float = 1.5,
-                    ahead_s: float = 0.2, hop_s: float = 0.2, utterance_norm: bool = False, pad_s: float = 2.0,
+def causal_features(samples: np.ndarray, front_end: str, encoder: dict | None = None,
+                    past_s: float = STREAM["past_s"], ahead_s: float = STREAM["ahead_s"],
+                    hop_s: float = STREAM["hop_s"], utterance_norm: bool = False, pad_s: float = STREAM["pad_s"],
                     piece_s: float = 0.02) -> np.ndarray:
     """The frames (1 + S // 160, D) a live stream of ``samples`` (raw, not normalised) would give, pushed
     in pieces of ``piece_s`` seconds: what ``bench/live.py`` compares with the offline front end."""

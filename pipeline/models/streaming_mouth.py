@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from pipeline.audio import audio_features
-from pipeline.audio.streaming_features import RATE, StreamingFeatures
+from pipeline.audio.streaming_features import RATE, STREAM, StreamingFeatures
 from pipeline.errors import ParameterError
 from pipeline.models.model_folder import load_model, read_config, read_state_dict
 from pipeline.models.mouth_pca import reconstruct
@@ -56,8 +56,9 @@ def load_student(model, model_dir, stream: dict) -> bool:
 class StreamingMouth:
     """Push 16 kHz mono samples (raw, any level); get [(k, coeffs, lip_points), …] for new frames."""
 
-    def __init__(self, model_dir, fps: float, past_s: float = 1.5, ahead_s: float = 0.2, hop_s: float = 0.2,
-                 pad_s: float = 2.0, device: str = "cpu", use_student: bool = True):
+    def __init__(self, model_dir, fps: float, past_s: float = STREAM["past_s"], ahead_s: float = STREAM["ahead_s"],
+                 hop_s: float = STREAM["hop_s"], pad_s: float = STREAM["pad_s"], device: str = "cpu",
+                 use_student: bool = True):
         config = read_config(model_dir)
         if config["model"] != "lstm":
             raise ParameterError(f"{model_dir}: a {config['model']} model cannot run live (its inference needs the "
@@ -149,8 +150,9 @@ class StreamingMouth:
         return out
 
 
-def stream_mouth(samples: np.ndarray, model_dir, fps: float, past_s: float = 1.5, ahead_s: float = 0.2,
-                 hop_s: float = 0.2, pad_s: float = 2.0, piece_s: float = 0.02, use_student: bool = True) -> np.ndarray:
+def stream_mouth(samples: np.ndarray, model_dir, fps: float, past_s: float = STREAM["past_s"],
+                 ahead_s: float = STREAM["ahead_s"], hop_s: float = STREAM["hop_s"], pad_s: float = STREAM["pad_s"],
+                 piece_s: float = 0.02, use_student: bool = True) -> np.ndarray:
     """Lip points (T, 18, 2) of a live stream of ``samples`` pushed in ``piece_s`` pieces (the bench's
     comparison with ``predict_mouth``)."""
     sm = StreamingMouth(model_dir, fps, past_s, ahead_s, hop_s, pad_s, use_student=use_student)
