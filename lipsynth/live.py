@@ -142,8 +142,11 @@ class LiveEngine:
             return
         each = cache.get(self.tgt, todo[0], T, self.p.composite, shape).nbytes
         todo = todo[1:max(1, int(cache.budget // max(each, 1)))]
+        t0 = time.perf_counter()
         with ThreadPoolExecutor(max(1, threads)) as pool:
             list(pool.map(lambda j: cache.get(self.tgt, j, T, self.p.composite, shape), todo))
+        log.info("live: the geometry of %d target frames made in %.1f s (%.0f MB)", len(todo) + 1,
+                 time.perf_counter() - t0, cache.used / 1e6)
 
     def reference_lips(self, target: str, model: str) -> np.ndarray:
         """Predicted lips of the target's own audio (the spread the re-targeting widens); the model's mean
