@@ -8,7 +8,7 @@ differ (their normalised distance is about half their spread), which costs lip s
 look-ahead (``bench/live_lookahead.py``). No video is needed to undo that: the model itself, run on the
 offline front end, is the teacher. For speech that neither the evaluation people (GRID s4, the
 strangers, Macron, Lieu, HDTF) use and whose licence lets it ship — GRID s1 (CC BY 4.0, the base's own
-corpus, every third clip) and the Obama clips (public domain) — the student (a copy of the LSTM) reads the causal
+corpus, one clip in ``--every``, default 3) and the Obama clips (public domain) — the student (a copy of the LSTM) reads the causal
 states and learns the teacher's hidden states and output (MSE on both; only the LSTM learns, the read-out stays the model's, so
 a person's read-out of the hidden states still fits), for ``--steps`` Adam steps on 2-s sequences; a tenth of the clips is held out
 and the best held-out step kept.
@@ -36,8 +36,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 
 
-def speech_files() -> list[Path]:
-    grid = sorted((DATA / "grid_s1" / "video").glob("*.mp4"))[::3]
+def speech_files(every: int = 3) -> list[Path]:
+    """Every ``every``-th GRID s1 clip and the Obama clips."""
+    grid = sorted((DATA / "grid_s1" / "video").glob("*.mp4"))[::every]
     return grid + sorted((DATA / "obama").glob("obama_0*.mp4"))
 
 
@@ -89,6 +90,7 @@ def main() -> None:
     ap.add_argument("--hop", type=float, default=STREAM["hop_s"])
     ap.add_argument("--pad", type=float, default=STREAM["pad_s"])
     ap.add_argument("--steps", type=int, default=1500)
+    ap.add_argument("--every", type=int, default=3, help="teach on every N-th GRID s1 clip (and the Obama clips)")
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args()
     from pipeline.models.model_folder import load_model
@@ -99,7 +101,7 @@ def main() -> None:
     if getattr(model, "skip", None) is not None:
         raise SystemExit(f"{a.model}: a model with a skip read-out (a personalized encoder read-out) is not distilled")
     stream = dict(past_s=a.past, ahead_s=a.ahead, hop_s=a.hop, pad_s=a.pad)
-    files = speech_files()
+    files = speech_files(a.every)
     t0 = time.perf_counter()
     data = pairs(files, model, config, arrays, stream)
     held = data[::10]
@@ -131,8 +133,8 @@ def main() -> None:
     torch.save(best_state, a.model / "live.pt")
     record = dict(stream=stream, files=len(data), minutes=sum(len(d[0]) for d in data) / 6000, held_out=len(held),
                   held_out_loss_before=start, held_out_loss=best, step_kept=best_step, steps=a.steps, curve=curve,
-                  teacher=a.model.name, data="GRID s1 (every third clip; CC BY 4.0), Obama weekly-address clips "
-                  "(public domain)", seconds=time.perf_counter() - t0)
+                  teacher=a.model.name, data=f"GRID s1 (one clip in {a.every}; CC BY 4.0), Obama weekly-address "
+                  "clips (public domain)", seconds=time.perf_counter() - t0)
     (a.model / "live.json").write_text(json.dumps(record, indent=1) + "\n")
     manifest = a.model / "MANIFEST.json"
     if manifest.is_file():
