@@ -3,7 +3,7 @@
     python bench/live.py [--repeats 3] [--long 600] [--out results/live.json]
 
 For each target — GRID s1 (360×288), HDTF (512²), an Obama weekly address (1280×720) — a fresh cache is
-prepared (``lipsynth prepare``, timed) and a 16-s HDTF speech WAV is streamed through ``lipsynth live
+prepared (``lipsynth prepare``, timed) and an 8-s HDTF speech WAV is streamed through ``lipsynth live
 --realtime`` (released at the pace it plays, as a live source would) ``--repeats`` times. From each
 run's ``--stats``: every frame's latency (an audio sample's arrival → its frame leaving the muxer),
 frames repeated to keep up, video − audio at the end (frames), and the process's peak memory (RSS
