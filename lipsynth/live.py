@@ -137,15 +137,14 @@ class LiveEngine:
         from concurrent.futures import ThreadPoolExecutor
         cache, T, shape = self.tgt.geometry, self.tp.T, (*self.frames.shape, 3)
         todo = [j for j in range(len(self.frames)) if self.tgt.pose_ok[j]]
-
         if not todo:
             return
-        each = cache.get(self.tgt, todo[0], T, self.p.composite, shape).nbytes
-        todo = todo[1:max(1, int(cache.budget // max(each, 1)))]
         t0 = time.perf_counter()
+        each = cache.get(self.tgt, todo[0], T, self.p.composite, shape).nbytes      # the size of one: how many fit
+        rest = todo[1:max(1, int(cache.budget // max(each, 1)))]
         with ThreadPoolExecutor(max(1, threads)) as pool:
-            list(pool.map(lambda j: cache.get(self.tgt, j, T, self.p.composite, shape), todo))
-        log.info("live: the geometry of %d target frames made in %.1f s (%.0f MB)", len(todo) + 1,
+            list(pool.map(lambda j: cache.get(self.tgt, j, T, self.p.composite, shape), rest))
+        log.info("live: the geometry of %d target frames made in %.1f s (%.0f MB)", 1 + len(rest),
                  time.perf_counter() - t0, cache.used / 1e6)
 
     def reference_lips(self, target: str, model: str) -> np.ndarray:
