@@ -180,17 +180,6 @@ class LiveEngine:
         return out
 
 
-def prepared(target: str, params: Params, model: str, cache: Path | None, prepared_only: bool):
-    """The target's stores (``speak.prepare_target``), preprocessing only when allowed."""
-    from lipsynth.speak import prepare_target
-    from lipsynth.target import target_cluster, warm_up_worker
-    from pipeline.io.parallel import SharedCluster
-    if prepared_only:
-        return prepare_target(target, params, model, cache, None, prepared_only=True)
-    with SharedCluster(target_cluster(params.cluster, target), warm_up=warm_up_worker) as cluster:
-        return prepare_target(target, params, model, cache, cluster)
-
-
 def audio_source(args):
     """The audio blocks with their arrival times. A file read without ``--realtime`` arrives at once: no
     frame is then ever behind its audio (``--max-behind`` is off), the stream is made as fast as it can be."""
@@ -211,6 +200,7 @@ def run(args, params: Params) -> dict:
     from pipeline.models.mouth_prediction import open_model
     model = open_model(args.model or params.synthesize.model)     # checked once, passed on
     t0 = time.perf_counter()
+    from lipsynth.prepare import prepared
     p, stores, entry, report = prepared(args.target, params, model, args.cache, prepared_only=True)
     engine = LiveEngine(p, stores, entry, args.target, model, args)
     server = None

@@ -17,13 +17,23 @@ from pathlib import Path
 
 from pipeline.errors import BadInputError
 from pipeline.io.runner import run_main, setup_logging
-from pipeline.params import load_params
+from pipeline.params import Params, load_params
 
 log = logging.getLogger("lipsynth.prepare")
 
 
+def prepared(target: str, params: Params, model: str, cache: Path | None, prepared_only: bool):
+    """The target's stores (``speak.prepare_target``), preprocessing only when allowed."""
+    from lipsynth.speak import prepare_target
+    from lipsynth.target import target_cluster, warm_up_worker
+    from pipeline.io.parallel import SharedCluster
+    if prepared_only:
+        return prepare_target(target, params, model, cache, None, prepared_only=True)
+    with SharedCluster(target_cluster(params.cluster, target), warm_up=warm_up_worker) as cluster:
+        return prepare_target(target, params, model, cache, cluster)
+
+
 def prepare(target: str, params_file, model: str | None, cache: Path | None) -> dict:
-    from lipsynth.live import prepared
     from pipeline.models.mouth_prediction import open_model
     params = load_params(params_file)
     if not Path(target).is_file():

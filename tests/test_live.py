@@ -183,7 +183,8 @@ def test_live_streams_a_file_with_audio_and_no_drift(prepared_speaker, tmp_path)
 def test_every_target_frame_geometry_is_made_before_the_stream_starts(prepared_speaker):
     """Made on demand, the first pass through a 720p target cost each frame ≈ 5 ms more while streaming."""
     import argparse
-    from lipsynth.live import LiveEngine, prepared
+    from lipsynth.live import LiveEngine
+    from lipsynth.prepare import prepared
     from pipeline.models.mouth_prediction import open_model
     from pipeline.params import load_params
     cache, speaker = prepared_speaker
