@@ -133,14 +133,13 @@ def composite_frame(frame: np.ndarray, synth_rgb: np.ndarray, j: int, tgt: Targe
     t3 = time.perf_counter()
     a = rendered[..., 3].astype(np.float32) / 255 * cover
     back = frame[y0:y1, x0:x1]
+    rgb = cv2.cvtColor(rendered, cv2.COLOR_RGBA2RGB)     # the colour channels, contiguous
     if p.sharpen > 0:              # give back the detail the resampling chain took (unsharp mask)
-        rgb = np.ascontiguousarray(rendered[..., :3])
         rgb = cv2.addWeighted(rgb, 1 + p.sharpen, cv2.GaussianBlur(rgb, (0, 0), p.sharpen_sigma), -p.sharpen, 0)
-        rendered = np.dstack([rgb, rendered[..., 3]])
     # outside the layer's support the front image is the target itself, so the pyramid's coarse
     # levels blend the synthesized face with the target only where they actually differ
-    support = cv2.dilate((a > 1e-3).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    front = np.where(support[..., None], rendered[..., :3], back)
+    support = cv2.dilate((a > 1e-3).astype(np.uint8), np.ones((5, 5), np.uint8))
+    front = cv2.copyTo(rgb, support, back.copy())
     out = frame.copy()
     out[y0:y1, x0:x1] = pyramid_blend(front, back, a, p.pyramid_levels)
     if timing is not None:
