@@ -1,4 +1,4 @@
-"""Speed of audio → video (synthesize + composite), ms/frame per phase, at GRID size, 720p and 1080p.
+"""Speed of audio → video (synthesize + composite), ms/frame per phase, at GRID size, 720p, 1080p and 4K.
 
     python bench/synthesize.py --repeats 3                       # the AVX2 row (lipsynth's default everywhere)
     LIPSYNTH_SIMD=native python bench/synthesize.py --repeats 3  # on an AVX-512 CPU: the AVX-512 row
@@ -13,7 +13,7 @@ ping-pong). 720p: ``obama_08.mp4`` (another person: its own 3D face and mouths; 
 192 px texture). 1080p: the same clip upscaled to 1920×1080 (bicubic, once, into
 bench/results/synthesize; same crop and texture sizes — the face covers 2.25× the pixels). 1080p native:
 the same footage with crop and texture as ``auto`` sizes them for a 1080-line face (the texture follows the
-face, up to ``frontalize.max_texture_size``).
+face, up to ``frontalize.max_texture_size``). 4K native: the clip upscaled to 3840×2160, sized by ``auto`` likewise.
 Preprocessing of the target is not timed (it is cached in bench/results/cache); model loading
 and mouth prediction are (in "prediction").
 
@@ -44,7 +44,7 @@ from pipeline.params import load_params  # noqa: E402
 from pipeline.io.runner import setup_logging  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
-SIZES = ("grid", "720p", "1080p", "1080p native")
+SIZES = ("grid", "720p", "1080p", "1080p native", "4K native")
 GRID_CLIP = "bbaf2n.mp4"      # a GRID s1 clip: the base model's speaker (its candidate bank joins the pool)
 PHASES = ["prediction", "retiming", "candidate_pool", "candidate_search", "weighted_median", "teeth", "detail",
           "decode", "retime_flow", "target_geometry", "flow", "render_back", "blend", "check", "encode"]
@@ -127,15 +127,17 @@ def write_results(rows: dict, path: Path) -> None:
     key = cpu_features()
     old = json.loads(path.read_text()) if path.is_file() else {}
     date = datetime.datetime.now().isoformat(timespec="minutes")
-    for r in rows.values():
-        r.update(commit=commit, date=date)
-    entry = old.setdefault("by_cpu", {}).setdefault(key, dict(rows={}))
-    for r in entry["rows"].values():                     # rows of earlier runs keep their own commit and date
-        r.setdefault("commit", entry.get("commit"))
-        r.setdefault("date", entry.get("date"))
     model = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
                  platform.processor() or platform.machine()) if os.path.exists("/proc/cpuinfo") else platform.machine()
-    entry.update(commit=commit, date=date, machine=f"{model}, {os.cpu_count()} cores")
+    machine = f"{model}, {os.cpu_count()} cores"
+    for r in rows.values():
+        r.update(commit=commit, date=date, machine=machine)
+    entry = old.setdefault("by_cpu", {}).setdefault(key, dict(rows={}))
+    for r in entry["rows"].values():                     # rows of earlier runs keep their own commit, date and machine
+        r.setdefault("commit", entry.get("commit"))
+        r.setdefault("date", entry.get("date"))
+        r.setdefault("machine", entry.get("machine"))
+    entry.update(commit=commit, date=date, machine=machine)
     entry["rows"].update(rows)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(old, indent=1))
@@ -152,22 +154,27 @@ def write_page(path: Path, page: Path = ROOT / "docs" / "synthesis_speed.md") ->
              "`python bench/synthesize.py --repeats 3`: synthesis and compositing as `lipsynth speak` runs them "
              "(with the shipped base model) of 32 s of speech into a GRID s1 clip, obama_08 (720p) "
              "and the same upscaled to 1080p (with 720p's 448 px crop and 192 px texture; `1080p native`: as `auto` "
-             "sizes them for the 1080-line face); ms/frame per phase (thread time: each phase runs on two "
+             "sizes them for the 1080-line face; `4K native`: the clip upscaled to 3840×2160, sized by `auto`); ms/frame per phase (thread time: each phase runs on two "
              "threads, so phases add up to more than the wall time), medians over repeats; "
-             "frames/s is wall time on 2 cores; each column keeps the commit and date it was measured on. Goals (issue 33): GRID ≥ 60, 720p ≥ 30, 1080p ≥ 20 frames/s. Columns named with a "
+             "frames/s is wall time on 2 cores; each column keeps the commit and date it was measured on. Goals: GRID ≥ 60, 720p ≥ 30, 1080p ≥ 20 frames/s (issue 33); 1080p native ≥ 30, 4K ≥ 10 frames/s (issue 48). Columns named with a "
              "method (`two_band`) ran with that `synthesize.detail` (`--detail`); the others with params.yaml's. "
              "The AVX2 table is what lipsynth runs on every CPU with AVX2, AVX-512 ones included (the cap of "
              "`pipeline/simd_level.py`, for the same bytes everywhere); the AVX-512 table lifts the cap "
              "(`LIPSYNTH_SIMD=native python bench/synthesize.py`).", ""]
     for cpu, entry in res["by_cpu"].items():
         rows = entry["rows"]
-        lines += [f"## {cpu} ({entry['machine']})", "",
+        machines = sorted({r.get("machine", entry["machine"]) for r in rows.values()})
+        lines += [f"## {cpu} ({'; '.join(machines)})", "",
                   "| phase | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]
         for k in PHASES:
             lines.append(f"| {k} | " + " | ".join(f"{r['ms_per_frame'].get(k, 0):.1f}" for r in rows.values()) + " |")
         lines += ["| **frames/s (wall)** | " + " | ".join(f"**{r['frames_per_s']:.1f}**" for r in rows.values()) + " |",
                   "| measured | " + " | ".join(f"{r.get('commit', entry['commit'])}, {str(r.get('date', entry['date']))[:10]}"
-                                           for r in rows.values()) + " |", ""]
+                                           for r in rows.values()) + " |"]
+        if len(machines) > 1:
+            lines.append("| machine | " + " | ".join(r.get("machine", entry["machine"]).split(",")[0] for r in rows.values())
+                         + " |")
+        lines.append("")
     page.write_text("\n".join(lines) + "\n")
     print(f"wrote {page}")
 
@@ -209,11 +216,13 @@ def main() -> None:
             target = SHARED / "grid_s1" / "video" / GRID_CLIP
         else:
             target = SHARED / "obama" / "obama_08.mp4"
-            if size != "1080p native":                     # crop and texture as auto gives 720p
+            if not size.endswith("native"):                # crop and texture as auto gives 720p
                 base.ingest.crop_size = 448
                 base.frontalize.texture_size = 192
             if size.startswith("1080p"):
                 target = upscaled(target, work / "obama_08_1080p.mp4", (1920, 1080))
+            if size.startswith("4K"):
+                target = upscaled(target, work / "obama_08_2160p.mp4", (3840, 2160))
         prep = speak.prepare(a.audio, str(target), base, a.model, cache=cache)
         e = prep.entry
         rows[size + (f" {a.detail}" if a.detail else "")] = report(
