@@ -103,3 +103,21 @@ def test_a_variable_frame_rate_clip_is_decoded_on_its_average_rate(tmp_path):
     np.testing.assert_array_equal(shown, expected)
     assert len(set(shown)) < len(times)                       # crowded frames were dropped
     assert (np.diff(shown) == 0).any()                        # gaps were filled by repeats
+
+
+def test_threaded_decoding_gives_every_frame_in_order_with_the_same_pixels(tmp_path, monkeypatch):
+    """Frame threading holds frames back inside the decoder (one per thread) and returns them at the flush: the
+    decoded clip must still be every frame, in order, at its time, with the pixels one thread gives."""
+    rng = np.random.default_rng(0)
+    frames = face_frames(37, (96, 64))
+    frames[:, :8, :8] = rng.integers(0, 255, (37, 8, 8, 3), dtype=np.uint8)      # each frame distinct
+    clip = make_clip(tmp_path / "clip.mp4", n_frames=37, frames=frames, audio=False)
+    decoded = {}
+    for threads in (1, media.DECODE_THREADS, 4):
+        monkeypatch.setattr(media, "DECODE_THREADS", threads)
+        decoded[threads] = list(media.iter_frames(clip, "rgb24"))
+    one = decoded.pop(1)
+    assert len(one) == 37
+    for threads, got in decoded.items():
+        assert [t for t, _ in got] == [t for t, _ in one], threads
+        assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(got, one)), threads
