@@ -33,6 +33,8 @@ AVX2_CAP = {
     "ONEDNN_MAX_CPU_ISA": "AVX",
     "CT2_FORCE_CPU_ISA": "AVX2",               # CTranslate2's own kernels
     "OPENBLAS_CORETYPE": "Haswell",            # OpenBLAS inside NumPy and SciPy wheels (Zen would get its own blocking)
+    # Intel IPP inside OpenCV picks its own level (k0 = AVX-512 where present), whatever OPENCV_CPU_DISABLE says
+    "OPENCV_IPP": "avx2",
     # x264 (inside PyAV's FFmpeg) reads no variable: our writers pass this to its ``asm`` option (x264_params).
     # Its AVX-512 kernels change the bitstream (measured: the demo's synthetic speaker clips differ from the
     # AVX2 machine's unless x264 is held at this list, what it detects on an AVX2 CPU).
@@ -40,7 +42,9 @@ AVX2_CAP = {
 }
 # switches that name a feature group, set only on a CPU that has it (naming one it lacks warns)
 AVX512_OFF = {
-    "NPY_DISABLE_CPU_FEATURES": "X86_V4",      # NumPy ≥ 2.4: its AVX-512 dispatch group (sorts, math loops)
+    # NumPy ≥ 2.4: every dispatch group above X86_V3. X86_V4 alone leaves AVX512_ICL (and AVX512_SPR) on: an
+    # Ice Lake or Zen 4 kept its AVX-512 kernels under the X86_V4-only cap. A group the CPU lacks is ignored.
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
 }
 
 

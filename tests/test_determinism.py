@@ -14,13 +14,15 @@ from tests.helpers import copy_project, dvc
 
 def lowest_dispatch() -> dict:
     """Environment turning off every run-time SIMD level this CPU has above the x86-64-v2 baseline, in NumPy
-    (its X86_V3 / X86_V4 dispatch groups) and OpenCV (AVX, AVX2, AVX-512): what an older CPU would run. Read
+    (every dispatch group from X86_V3 up) and OpenCV (AVX, AVX2, AVX-512, and its IPP): what an older CPU would run. Read
     from the CPU's flags and OpenCV's dispatch list, not from what this (capped) process runs."""
     import cv2
     flags = cpu_flags()
-    numpy_off = [g for g, needs in (("X86_V4", AVX512_SKX), ("X86_V3", {"avx2", "fma", "bmi2"})) if needs <= flags]
+    numpy_off = [g for g, needs in (("X86_V4 AVX512_ICL AVX512_SPR", AVX512_SKX), ("X86_V3", {"avx2", "fma", "bmi2"}))
+                 if needs <= flags]
     return {"NPY_DISABLE_CPU_FEATURES": " ".join(numpy_off),
-            "OPENCV_CPU_DISABLE": ",".join(opencv_above_baseline(cv2.getCPUFeaturesLine(), flags))}
+            "OPENCV_CPU_DISABLE": ",".join(opencv_above_baseline(cv2.getCPUFeaturesLine(), flags)),
+            "OPENCV_IPP": "sse42"}                   # the IPP inside OpenCV: its SSE4.2 build (y8)
 
 
 def opencv_above_baseline(features_line: str, flags: set[str]) -> list[str]:

@@ -13,7 +13,7 @@ SKX = {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512cd", "avx512bw", "avx51
 
 def test_an_avx512_cpu_is_capped_at_avx2_in_every_library():
     cap = cap_for(SKX)
-    assert cap == dict(AVX2_CAP, NPY_DISABLE_CPU_FEATURES="X86_V4", OPENCV_CPU_DISABLE="AVX512-SKX")
+    assert cap == dict(AVX2_CAP, NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR", OPENCV_CPU_DISABLE="AVX512-SKX")
     assert {"NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "MKL_CBWR", "ONEDNN_MAX_CPU_ISA"} <= set(cap)
 
 
@@ -70,6 +70,23 @@ def test_a_stage_module_pins_before_numpy_loads():
         r = subprocess.run([sys.executable, "-c", probe.format(module=module)], cwd=ROOT, capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
         assert ast.literal_eval(r.stdout.strip())[0] == "pipeline", (module, r.stdout)
+
+
+def test_under_the_cap_numpy_and_opencvs_ipp_run_no_kernel_above_avx2():
+    """What the libraries report they run, in a process that imports ``pipeline`` first: NumPy no dispatch
+    group above X86_V3 (the X86_V4-only cap left AVX512_ICL on, on an Ice Lake or a Zen 4), and the Intel IPP
+    inside OpenCV its AVX2 build (l9), not its AVX-512 one (k0), which OPENCV_CPU_DISABLE does not reach."""
+    probe = ("import pipeline, numpy, cv2\n"
+             "from numpy._core._multiarray_umath import __cpu_features__ as on, __cpu_dispatch__ as groups\n"
+             "print(repr(([g for g in groups if on.get(g)], cv2.ipp.getIppVersion())))\n")
+    ours = set(AVX2_CAP) | {"LIPSYNTH_SIMD", "NPY_DISABLE_CPU_FEATURES", "OPENCV_CPU_DISABLE"}
+    env = {k: v for k, v in os.environ.items() if k not in ours}         # the cap as pipeline sets it
+    r = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, env=env, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    numpy_groups, ipp = ast.literal_eval(r.stdout.strip())
+    assert cpu_flags() >= {"avx2", "fma", "bmi2"}, "the cap holds AVX2 CPUs: this test needs one"
+    assert numpy_groups == ["X86_V3"], numpy_groups
+    assert "(l9)" in ipp and "AVX-512" not in ipp, ipp
 
 
 def test_x264_is_held_at_the_capped_instruction_sets(tmp_path):
