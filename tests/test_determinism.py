@@ -7,7 +7,7 @@ import time
 import pytest
 import yaml
 
-from pipeline.simd_level import AVX2_CAP, AVX512_SKX, cpu_flags
+from pipeline.simd_level import AVX2_CAP, AVX512_OFF, AVX512_SKX, cpu_flags
 from bench.cross_vendor import result_of, start_on
 from tests.conftest import skip_unless_ci
 from tests.helpers import copy_project, dvc
@@ -18,8 +18,8 @@ def lowest_dispatch() -> dict:
     from the CPU's flags and OpenCV's dispatch list, not from what this (capped) process runs."""
     import cv2
     flags = cpu_flags()
-    numpy_off = [g for g, needs in (("X86_V4 AVX512_ICL AVX512_SPR", AVX512_SKX), ("X86_V3", {"avx2", "fma", "bmi2"}))
-                 if needs <= flags]
+    numpy_off = [g for g, needs in ((AVX512_OFF["NPY_DISABLE_CPU_FEATURES"], AVX512_SKX),
+                                           ("X86_V3", {"avx2", "fma", "bmi2"})) if needs <= flags]
     return {"NPY_DISABLE_CPU_FEATURES": " ".join(numpy_off),
             "OPENCV_CPU_DISABLE": ",".join(opencv_above_baseline(cv2.getCPUFeaturesLine(), flags)),
             "OPENCV_IPP": "sse42"}                   # the IPP inside OpenCV: its SSE4.2 build (y8)
