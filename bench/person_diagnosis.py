@@ -19,7 +19,11 @@ by its stem) it runs ``lipsynth personalize`` (the shipped base unless ``--base`
 4. ``speak`` — ``lipsynth speak --no-retime`` with the kept model, each held-out clip its own audio
    and target, scored by the yardstick (what a user gets);
 5. ``oracle`` — the same render path with the clip's own tracked lips (``bench/speak_oracle.py``):
-   the floor of the renderer.
+   the floor of the renderer;
+6. ``stages`` — what the model knows against what `speak` shows (``bench/speak_stages.py``), self-replay
+   (the held-out clip's words into itself) and cross-clip (into the training segment before it): the model's
+   predicted opening against dlib's on the footage that said the words (``lipsynth predict-mouth``'s lip
+   points), the candidates' and the re-tracked output's.
 
 Writes the JSON (with commit, date and machine), a plot beside it and a markdown table
 (``--table``, default ``docs/person_diagnosis.md``).
@@ -43,6 +47,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 YARDSTICK = ROOT.parent / "shared" / "tools" / "lipsync_yardstick.py"
 BAND_HZ = (1.0, 8.0)
+TAG = ""                 # --tag: suffix of the scored files of this run (e.g. the code version measured)
 CANDIDATES = ("base", "readout", "encoder_readout", "average", "retrieval", "fine_tune")
 
 
@@ -160,27 +165,56 @@ def measure(name: str, paths: list[str], work: Path, model: Path, seg: float, se
                   f"--cache {cache}",
     }
     for key, make in rows.items():
-        done = work / f"{key}.json"
+        done = work / f"{key}{TAG if key != 'floor' else ''}.json"
         if reuse and done.is_file() and json.loads(done.read_text())["summary"].get("ok"):
             row[key] = yardstick_summary(json.loads(done.read_text()))
         else:
             row[key] = yardstick(make, clips, done)
         print(f"{name} {key}: {row[key]}", flush=True)
+    row["stages"] = speak_stages(model, work, store, clips[0], cache, reuse)
     return row
+
+
+def speak_stages(model: Path, work: Path, store: Path, held: str, cache: Path, reuse: bool) -> dict:
+    """``bench/speak_stages.py`` on the first held-out clip: its own words into itself (self) and into the
+    training segment before it (cross)."""
+    from bench import speak_stages as ss
+    from pipeline.io.store import open_group
+    done = work / f"stages{TAG}.json"
+    if reuse and done.is_file():
+        return json.loads(done.read_text())
+    names = [v["name"] for v in open_group(str(store / "ingest.zarr")).attrs["videos"] if v["split"] == "train"]
+    before = [n for n in names if n < Path(held).stem] or names
+    face = str(Path(held).with_name(max(before) + ".mp4"))
+    res = {kind: ss.run(str(model), held, target, held, str(ROOT / "params.yaml"), [], cache)
+           for kind, target in (("self", held), ("cross", face))}
+    done.write_text(json.dumps(res, indent=1))
+    print(f"stages: {json.dumps({k: v['stages'] for k, v in res.items()})}", flush=True)
+    return res
 
 
 def fmt(x, spec=".2f"):
     return "–" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
 
 
+def stage_cells(r: dict) -> str:
+    st = r.get("stages")
+    if not st:
+        return "– | – | – |"
+    lb = lambda x: f"{fmt(x['corr'])} / {fmt(x['corr_best'])}"
+    s, c = st["self"]["stages"], st["cross"]["stages"]
+    return f"{lb(s['model'])} | {lb(s['candidates'])} · {lb(s['output'])} | {lb(c['output'])} |"
+
+
 def table(rows: list[dict]) -> str:
     lines = ["| person | held out | floor: re-encode ratio / corr | mouth variance following speech | in-store ratio (corr): "
              "base · readout · encoder_readout · average · retrieval · fine_tune | kept | `speak` ratio / corr lag 0 / best | `speak` sharpness / "
-             "flicker (yardstick: original ÷ output) | oracle render ratio / corr |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "flicker (yardstick: original ÷ output) | oracle render ratio / corr | model alone: predicted vs tracked, lag 0 / best | "
+             "`speak` self-replay: candidates · output, lag 0 / best | `speak` cross-clip: output, lag 0 / best |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            lines.append(f"| {r['name']} | {r['error']} |  |  |  |  |  |  |  |")
+            lines.append(f"| {r['name']} | {r['error']} |  |  |  |  |  |  |  |  |  |  |")
             continue
         st = r["in_store"]
         cands = " · ".join(f"{fmt(st[c]['ratio'])} ({fmt(st[c]['corr'])})" for c in CANDIDATES if c in st)
@@ -188,7 +222,7 @@ def table(rows: list[dict]) -> str:
         lines.append(f"| {r['name']} | {len(r['held_out'])} clip{'s' if len(r['held_out']) != 1 else ''} | {fmt(fl['err_ratio'])} / {fmt(fl['corr'])} | "
                      f"{fmt(r['speech_share']['share'])} | {cands} | {r['chosen']} | "
                      f"{fmt(sp['err_ratio'])} / {fmt(sp['corr'])} / {fmt(sp['corr_best'])} | "
-                     f"{fmt(sp['sharp'])} / {fmt(sp['flicker'])} | {fmt(orc['err_ratio'])} / {fmt(orc['corr'])} |")
+                     f"{fmt(sp['sharp'])} / {fmt(sp['flicker'])} | {fmt(orc['err_ratio'])} / {fmt(orc['corr'])} | " + stage_cells(r))
     return "\n".join(lines) + "\n"
 
 
@@ -221,7 +255,11 @@ def main() -> None:
     ap.add_argument("--reuse", action="store_true", help="keep a person's model and scored rows from an earlier run")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "person_diagnosis.json")
     ap.add_argument("--table", type=Path, default=ROOT / "docs" / "person_diagnosis.md")
+    ap.add_argument("--tag", default="", help="suffix of this run's scored files in the work folder (reuse keeps "
+                    "each tag's own)")
     a = ap.parse_args()
+    global TAG
+    TAG = a.tag
     if not YARDSTICK.is_file():
         raise SystemExit(f"{YARDSTICK}: the yardstick is not there (../shared/tools beside the project)")
     rows = [diagnose(*videos_of(spec), a.base, a.work, a.steps, a.reuse) for spec in a.people]

@@ -110,7 +110,7 @@ class LiveEngine:
         from stages.composite.composite import Target
         from stages.synthesize import texture as tx
         from stages.synthesize.synthesize import Retarget
-        from stages.synthesize.texture_pool import texture_pool
+        from stages.synthesize.texture_pool import REAL_DETAIL, texture_pool
         self.p, self.tx = p, tx
         self.fps = float(entry["fps"])
         self.mouth = StreamingMouth(model, self.fps, args.past, args.ahead, args.hop, args.pad)
@@ -125,7 +125,7 @@ class LiveEngine:
             self.retarget = Retarget.fit(self.reference_lips(target, model), self.mouth.mean_shape, self.tp.shapes,
                                          p.synthesize.max_spread_gain)
         self.detail = DetailPicker(self.tp.pool, p.synthesize.detail_switch_cost) \
-            if self.tp.method == "two_band" else None
+            if self.tp.method in REAL_DETAIL else None
         self.thread_ms = dict(texture=[], composite=[], encode=[])      # per frame, thread time
         self.warm_geometry(args.threads)
 

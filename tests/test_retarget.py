@@ -37,3 +37,17 @@ def test_a_damped_prediction_is_widened_to_the_targets_own_motion_within_the_cap
     assert abs(rms(capped) - 2.0 * rms(plain)) < 1e-9
     lively = retarget(shapes(200, 9.0, 0), model_mean, target, max_spread_gain=5.0)
     assert np.allclose(lively, retarget(shapes(200, 9.0, 0), model_mean, target))   # never narrowed
+
+
+def test_the_pool_speakers_own_prediction_is_widened_around_its_mean_and_keeps_its_correlation():
+    """The same-speaker path (no re-targeting): a damped prediction of the pool's own person (an LSTM
+    regressing to the mean) is widened to the pool's spread, within the cap, never narrowed."""
+    from stages.synthesize.synthesize import widen
+    lips, pool = shapes(200, 1.0, 0), shapes(300, 2.5, 1)
+    wide = widen(lips, pool, 5.0)
+    assert abs(rms(wide) - rms(pool)) < 1e-9
+    assert np.allclose(wide.mean(0), lips.mean(0))
+    opening = lambda s: s[:, 9, 1] - s[:, 3, 1]
+    assert np.corrcoef(opening(wide), opening(lips))[0, 1] > 1 - 1e-12      # affine: what the model knows is kept
+    assert abs(rms(widen(lips, pool, 1.5)) - 1.5 * rms(lips)) < 1e-9
+    assert np.allclose(widen(shapes(200, 9.0, 0), pool, 5.0), shapes(200, 9.0, 0))

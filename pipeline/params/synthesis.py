@@ -47,7 +47,7 @@ class Synthesize(Section):
     device: str = "auto"
     emotion: int | str | None = None
 
-    CHOICES = {"retarget": ("auto", "always", "never"), "detail": ("auto", "median", "aligned", "two_band")}
+    CHOICES = {"retarget": ("auto", "always", "never"), "detail": ("auto", "median", "aligned", "two_band", "warped")}
 
     def validate(self) -> None:
         super().validate()

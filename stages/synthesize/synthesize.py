@@ -50,7 +50,7 @@ from stages.synthesize import retime as rt
 from stages.synthesize.speech_flags import speech_flags
 from stages.synthesize import texture as tx
 from stages.synthesize import two_band
-from stages.synthesize.texture_pool import synthesize_frame, texture_pool, usable
+from stages.synthesize.texture_pool import REAL_DETAIL, synthesize_frame, texture_pool, usable
 
 log = logging.getLogger("lipsynth.synthesize")
 
@@ -115,6 +115,25 @@ class Retarget:
         if self.gain == 1.0:
             return self.target_mean + moved
         return self.target_mean + self.centre + (moved - self.centre) * self.gain
+
+
+def widen(lips: np.ndarray, pool_shapes: np.ndarray, max_gain: float) -> np.ndarray:
+    """Predicted shapes of the pool's own speaker (same PCA frame: no re-targeting), their motion widened
+    toward the pool's: deviations from the prediction's mean × the RMS spread of the pool's shapes over that
+    of the predictions, clipped to [1, ``max_gain``].
+
+    An LSTM regressing to the mean predicts a person's mouth motion at a half to a third of its spread
+    (bench/speak_stages.py: 0.48 on Lieu's held-out part); the nearest candidates then all sit about the
+    mean mouth, the rendered opening moves less than dlib's own jitter on the output and the re-tracked
+    output follows the prediction at ≈ 0.5. The gain is affine: the prediction's correlation with the
+    speech is kept. lips : (N, 18, 2); pool_shapes : (M, 18, 2) texture px → (N, 18, 2).
+    """
+    rms = lambda d: float(np.sqrt(np.nanmean(np.sum(d ** 2, axis=-1))))
+    centre = lips.mean(0)
+    own, predicted = rms(pool_shapes - np.nanmean(pool_shapes, 0)), rms(lips - centre)
+    gain = float(np.clip(own / predicted, 1.0, max_gain)) if predicted > 0 and np.isfinite(own) else 1.0
+    log.info("predicted mouth motion widened toward the candidate pool's own (spread × %.2f)", gain)
+    return centre + (lips - centre) * gain
 
 
 def output_timing(samples: np.ndarray, n_out: int, target_landmarks: np.ndarray, fps: float, p: Synthesize):
@@ -268,8 +287,10 @@ def run(params: Params, out: str, stores: dict, entry: dict, mouth: dict | None 
     tp = texture_pool(stores, entry, p)
     if p.retarget == "always" or (p.retarget == "auto" and not same_corpus):
         lips = retarget(lips, mouth["mean_shape"], tp.shapes, p.max_spread_gain)
+    elif p.max_spread_gain > 1.0:
+        lips = widen(lips, tp.shapes, p.max_spread_gain)
     plan = searches = None
-    if tp.method == "two_band":
+    if tp.method in REAL_DETAIL:
         plan, searches = detail_plan(lips, tp.shapes, tp.pool, p)
     timing["candidate_pool"] = time.perf_counter() - t0
     with atomic_output(out) as tmp:

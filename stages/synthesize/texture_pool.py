@@ -82,6 +82,8 @@ def read_pool(stores: dict, entry: dict, p: Synthesize):
 
 
 TWO_BAND_FROM = 160                               #: texture px from which ``detail: auto`` takes two_band
+ALIGNING = ("aligned", "warped")                  #: methods whose candidates are warped onto the wanted lips first
+REAL_DETAIL = ("two_band", "warped")              #: methods that put a real frame's detail over the median
 
 
 def detail_method(detail: str, texture_size: int) -> str:
@@ -122,7 +124,7 @@ def median_size(texture_size: int, method: str, p: Synthesize) -> int:
     rounded up to 16, whatever T) resolves all of them. At 720p (T = 192) that is 128 px: less than half
     the median's work for the same low band."""
     m = min(int(texture_size), p.median_max_size)
-    if method == "two_band":
+    if method in REAL_DETAIL:
         m = min(m, 16 * int(np.ceil(2 * REFERENCE_TEXTURE / p.detail_band_px / 16)))
     return m
 
@@ -167,7 +169,7 @@ def texture_pool(stores: dict, entry: dict, p: Synthesize) -> TexturePool:
     proxies = None
     teeth = []
     method = detail_method(p.detail, pool_tex.shape[2])
-    if method == "two_band":              # real detail replaces the teeth proxy and the unsharp mask
+    if method in REAL_DETAIL:             # real detail replaces the teeth proxy and the unsharp mask
         detail["unsharp_amount"] = 0.0
     else:
         yaw = np.radians([euler_degrees(r)[0] for r in pose[:, :3]])        # frontal proxies preferred
@@ -207,7 +209,7 @@ def synthesize_frame(tp: TexturePool, lip: np.ndarray, p: Synthesize, search: di
     weight)] (``two_band``)."""
     wanted = lip.reshape(len(LIP_POINTS), 2)
     small, scale, flm, px, T = tp.small, tp.scale, tp.flm, tp.px, tp.T
-    if tp.method != "aligned":
+    if tp.method not in ALIGNING:
         get = lambda idx: small[idx]
     else:                                   # candidates moved onto the wanted lip points first
         get = lambda idx: two_band.align_candidates(
@@ -215,7 +217,7 @@ def synthesize_frame(tp: TexturePool, lip: np.ndarray, p: Synthesize, search: di
             scale * px * p.detail_warp_px)
     rgb, info = tx.synthesize_texture(lip, tp.shapes, get, flm, p.n, p.alpha, tp.proxies, tp.detail,
                                       search=search, size=T)
-    if tp.method == "aligned":
+    if tp.method in ALIGNING:
         info["landmarks"][LIP_POINTS] = wanted
     if sources is not None:
         t_detail = time.perf_counter()
