@@ -18,8 +18,8 @@ Sets:
 * ``strangers`` — each clip of ``../shared/data/strangers`` of at least 10 s cut in two halves: the second
   half's words into the first half's video, scored against the second half; ``models/base``;
 * ``people`` — every personalized person of ``--people`` (``bench/person_diagnosis.py``'s work folder: a
-  model and its footage's segments): the held-out segment's words into the training segment before it,
-  with the person's own model.
+  model and its footage's segments): the held-out segment's words into each of the ``--faces`` training
+  segments before it, with the person's own model.
 
 Self-replay (the words' own clip as the face) is measured beside each pair. Writes
 ``results/cross_clip.json`` (commit, date, machine), ``results/cross_clip.png`` and ``docs/cross_clip.md``.
@@ -80,9 +80,10 @@ def stranger_pairs() -> list[dict]:
     return out
 
 
-def people_pairs(root: Path) -> list[dict]:
-    """Each person of a person_diagnosis work folder: held-out segment's words into the training segment
-    before it (the same recording's framing)."""
+def people_pairs(root: Path, faces: int) -> list[dict]:
+    """Each person of a person_diagnosis work folder: the held-out segment's words into each of the ``faces``
+    training segments before it, nearest first (the person's model has seen those faces' frames: its
+    candidate bank is the person's training footage)."""
     from pipeline.io.store import open_group
     out = []
     for work in sorted(p for p in root.iterdir() if (p / "model").is_dir() and (p / "w" / "store").is_dir()):
@@ -93,9 +94,10 @@ def people_pairs(root: Path) -> list[dict]:
         if not val or not train:
             continue
         words = val[0]
-        face = max((v for v in train if v["name"] < words["name"]), key=lambda v: v["name"], default=train[-1])
-        out.append(dict(set="people", person=work.name, words=str(footage / f"{words['name']}.mp4"),
-                        face=str(footage / f"{face['name']}.mp4"), model=str(work / "model")))
+        before = sorted((v for v in train if v["name"] < words["name"]), key=lambda v: v["name"]) or train
+        for face in before[::-1][:faces]:
+            out.append(dict(set="people", person=work.name, words=str(footage / f"{words['name']}.mp4"),
+                            face=str(footage / f"{face['name']}.mp4"), model=str(work / "model")))
     return out
 
 
@@ -132,8 +134,8 @@ def page(summary: dict) -> str:
              "**Cross-clip**: the words of another clip of the same person, so no frame of the face says them — what a "
              "user does. **Self-replay**: the words' own clip as the face (the paper's Video J), beside it. Sets: GRID s4 "
              "(a person the base never met; clip 2i's words into clip 2i + 1), the strangers of at least 10 s (the second "
-             "half's words into the first half), personalized people (their held-out part's words into the training part "
-             "before it, with their own model). Medians over the pairs; sharpness and flicker are original ÷ output "
+             "half's words into the first half), personalized people (their held-out part's words into the training parts "
+             "before it, with their own model). Medians over the pairs; sharpness and flicker are output ÷ original "
              "(1 = as the real mouth).", "",
              "| set | method | pairs | cross-clip corr lag 0 / best | self-replay corr lag 0 / best | cross-clip mouth error / static | sharpness | flicker |",
              "|---|---|---|---|---|---|---|---|"]
@@ -178,9 +180,12 @@ def main() -> None:
     ap.add_argument("--model", default=str(ROOT / "models" / "base"), help="the model of the grid_s4 and strangers sets")
     ap.add_argument("--people", type=Path, default=ROOT / "runs" / "diagnosis",
                     help="bench/person_diagnosis.py's work folder (personalized models and their footage)")
+    ap.add_argument("--faces", type=int, default=2, help="people: training segments each held-out part's words go into")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a params.yaml key for every method (repeatable)")
     ap.add_argument("--no-self", action="store_true", help="cross-clip only (half the runs)")
+    ap.add_argument("--reuse", action="store_true", help="score an output MP4 already in bench/results/cross_clip "
+                    "instead of making it again (same code and params only)")
     ap.add_argument("--dry", action="store_true", help="print the rows only; write no results or page")
     a = ap.parse_args()
     if not YARDSTICK.is_file():
@@ -188,7 +193,7 @@ def main() -> None:
     ys = yardstick()
     WORK.mkdir(parents=True, exist_ok=True)
     pairs = (grid_pairs(a.pairs) if "grid_s4" in a.sets else []) + (stranger_pairs() if "strangers" in a.sets else []) \
-        + (people_pairs(a.people) if "people" in a.sets and a.people.is_dir() else [])
+        + (people_pairs(a.people, a.faces) if "people" in a.sets and a.people.is_dir() else [])
     base = yaml.safe_load((ROOT / "params.yaml").read_text())
     for item in a.set:
         key, _, value = item.partition("=")
@@ -204,7 +209,7 @@ def main() -> None:
                 if kind == "self" and a.no_self:
                     continue
                 out = WORK / f"{pair['set']}_{Path(pair['words']).stem}_into_{Path(face).stem}_{method}.mp4"
-                err = speak(pair["model"] or a.model, pair["words"], face, out, params)
+                err = None if a.reuse and out.is_file() else speak(pair["model"] or a.model, pair["words"], face, out, params)
                 row[kind] = dict(error=err) if err else score(ys, pair["words"], out)
             rows.append(row)
             print(json.dumps({k: row[k] for k in ("set", "person", "method")} |

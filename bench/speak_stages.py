@@ -40,6 +40,7 @@ from pipeline.io.store import open_group
 from pipeline.params import load_params, parse
 from stages.composite import composite
 from stages.synthesize import synthesize
+from stages.synthesize.texture_pool import read_pool
 
 ROOT = Path(__file__).resolve().parents[1]
 #: rows of the 18 ``LIP_POINTS`` (48–59, 61–63, 65–67) that are the dlib inner lips 61–63 and 65–67
@@ -90,6 +91,7 @@ def run(model: str, audio: str, target: str, reference: str, params_path: str, s
         composite.run(prep.params, store, out, prep.params.frontalize.out, target, audio)
         g = open_group(store)
         wanted = np.asarray(g["lip_points"][...], np.float64)
+        pool_shapes = read_pool(prep.stores, prep.entry, prep.params.synthesize)[3][:, LIP_POINTS]
         cand = np.asarray(g["candidate_landmarks"][...], np.float64)[:, LIP_POINTS]
         tex_iod = IOD_MM / prep.stores["frontalize"].attrs["texture_window"]["mm_per_px"]
         mouth = prep.mouth or synthesize.predicted_lips(np.zeros(1), prep.stores, prep.entry, prep.params.synthesize, None)[1]
@@ -106,12 +108,15 @@ def run(model: str, audio: str, target: str, reference: str, params_path: str, s
     out_iod = float(np.median(quality.interocular(out_lm[out_ok])))
     model_open = opening18(predicted)
     iod_model = float(mouth.get("iod_px") or tex_iod)
+    d2 = ((wanted[:, None] - pool_shapes[None]) ** 2).sum(-1).mean(-1)          # (N, P) mean squared point distance
+    nearest = np.sqrt(d2.min(1)) / tex_iod
     rows = dict(model=stage_row(model_open, ref, model_open, iod_model, ref_iod),
                 wanted=stage_row(opening18(wanted), ref, model_open, tex_iod, ref_iod),
                 candidates=stage_row(opening18(cand), ref, model_open, tex_iod, ref_iod),
                 output=stage_row(output, ref, model_open, out_iod, ref_iod))
     return dict(model=model, audio=audio, target=target, reference=reference, sets=sets, path=prep.report["path"],
-                frames=int(len(wanted)), stages=rows,
+                frames=int(len(wanted)), stages=rows, pool=int(len(pool_shapes)),
+                nearest_iod=dict(median=float(np.median(nearest)), p90=float(np.quantile(nearest, 0.9))),
                 look={k: look[k] for k in ("sharpness_ratio", "flicker_ratio", "detail_energy_ratio", "detail_flicker_ratio")})
 
 
@@ -133,6 +138,8 @@ def main() -> None:
     for k, r in res["stages"].items():
         print(f"{k:>10}: corr {r['corr']:.2f} best {r['corr_best']:.2f} (lag {r['best_lag']:+d})  vs model "
               f"{r['corr_model']:.2f}  spread {r['spread']:.2f}")
+    print(f"  nearest candidate (RMS point distance / IOD): median {res['nearest_iod']['median']:.3f}, "
+          f"p90 {res['nearest_iod']['p90']:.3f} over a pool of {res['pool']}")
     print("  look (output ÷ target's own mouth): " + ", ".join(f"{k} {v:.2f}" for k, v in res["look"].items()))
     if a.json:
         a.json.write_text(json.dumps(res, indent=1))

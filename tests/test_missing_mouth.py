@@ -3,6 +3,7 @@ the wanted lip points before the weighted median, so the rendered opening follow
 paper's plain median can only repeat the nearest mouths the pool has."""
 import cv2
 import numpy as np
+import pytest
 
 from pipeline.face.dlib_face import LIP_POINTS
 from pipeline.params import load_params
@@ -51,12 +52,15 @@ def dark_rows(rgb: np.ndarray) -> int:
     return int((band < 70).sum())
 
 
-def test_a_wider_mouth_than_the_pool_ever_showed_is_made_by_warping_the_nearest_real_mouths():
+@pytest.mark.parametrize("method", ["aligned", "warped"])
+def test_a_wider_mouth_than_the_pool_ever_showed_is_made_by_warping_the_nearest_real_mouths(method):
+    """``warped`` also lays a real frame's detail (here the most open one's) over the warped median."""
     p = load_params().synthesize
     openings = np.r_[np.linspace(1.0, 4.0, 40)]                      # the target only ever half-opens its mouth
     wanted = landmarks(12.0)[LIP_POINTS]
     plain = synthesize_frame(pool("median", openings), wanted, p).rgb
-    warped = synthesize_frame(pool("aligned", openings), wanted, p).rgb
+    sources = [(len(openings) - 1, 1.0)] if method == "warped" else None
+    warped = synthesize_frame(pool(method, openings), wanted, p, sources=sources).rgb
     assert dark_rows(plain) <= 5                                       # the median repeats the nearest: ≈ 4 px
     assert dark_rows(warped) >= 9, dark_rows(warped)                   # the wanted 12 px, within the warp's reach
     same = synthesize_frame(pool("aligned", openings), landmarks(3.0)[LIP_POINTS], p).rgb
