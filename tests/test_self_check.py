@@ -63,3 +63,42 @@ def test_check_catches_a_lower_face_drawn_stretched_down():
     bad = check_frame(stretched, expected, mouth_energy(rgb, lm))
     assert bad["error"] < 0.12                              # the mouth check alone passes it
     assert bad["face_error"] > 0.1 and not passes(bad, 0.12, 4.0, 0.1)
+
+
+def _box_biased(lm):
+    """Where a 3D fit may put a turned or frame-cut face's jawline and brows: the face box made from them is
+    not the detector's, and dlib reads even the untouched frame far from its tracked points."""
+    e = lm.copy()
+    iod = float(dlib_face.interocular(lm))
+    e[17:27, 1] -= iod
+    e[0:17, 0] += np.sign(e[0:17, 0] - e[30, 0]) * 0.5 * iod
+    return e
+
+
+def test_the_differential_check_cancels_dlibs_box_bias_and_still_catches_a_wrong_mouth():
+    rgb, lm = _photo()
+    biased = _box_biased(lm)
+    energy = mouth_energy(rgb, lm)
+    absolute = check_frame(rgb, biased, energy)                  # the untouched frame, read in the biased box
+    assert not passes(absolute, 0.12, 4.0, 0.1)                  # the absolute check fails it
+    same = check_frame(rgb, biased, energy, rgb, biased)
+    assert same["error"] < 1e-9 and same["face_error"] < 1e-9 and passes(same, 0.12, 4.0, 0.1)
+    moved = biased.copy()                                        # a mouth claimed 0.3 IOD lower than it shows
+    moved[48:68, 1] += 0.3 * dlib_face.interocular(lm)
+    bad = check_frame(rgb, moved, energy, rgb, biased)
+    assert bad["error"] > 0.25 and not passes(bad, 0.12, 4.0, 0.1)
+
+
+def test_the_differential_check_catches_a_lower_face_drawn_stretched_down():
+    rgb, lm = _photo()
+    iod = float(dlib_face.interocular(lm))
+    top = float(lm[27:30, 1].mean())
+    scale = 1 + 0.25 * iod / (lm[48:68, 1].mean() - top)
+    h, w = rgb.shape[:2]
+    ys, xs = np.mgrid[:h, :w].astype(np.float32)
+    stretched = cv2.remap(rgb, xs, np.where(ys > top, top + (ys - top) / scale, ys).astype(np.float32), cv2.INTER_LINEAR)
+    target_expected = _box_biased(lm)
+    expected = target_expected.copy()
+    expected[48:68, 1] = top + (lm[48:68, 1] - top) * scale
+    bad = check_frame(stretched, expected, mouth_energy(rgb, lm), rgb, target_expected)
+    assert bad["face_error"] > 0.1 and not passes(bad, 0.12, 4.0, 0.1)

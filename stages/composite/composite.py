@@ -176,7 +176,8 @@ def composite_one(frame: np.ndarray, following: np.ndarray | None, texture: np.n
     check = None
     if p.self_check and tgt.pose_ok[j]:
         t0 = time.perf_counter()
-        check = self_check.check_frame(result, tgt.expected_landmarks(j, candidate), reference)
+        check = self_check.check_frame(result, tgt.expected_landmarks(j, candidate), reference, frame,
+                                       tgt.expected_landmarks(j, tgt.flm[j]))
         t["check"] = time.perf_counter() - t0      # the phase; "self_check" is the summary
     return frame, result, t, check
 
