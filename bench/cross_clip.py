@@ -175,11 +175,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sets", nargs="*", default=["grid_s4", "strangers", "people"], choices=["grid_s4", "strangers", "people"])
     ap.add_argument("--pairs", type=int, default=6, help="GRID s4 pairs (default 6)")
-    ap.add_argument("--methods", nargs="*", default=["two_band", "aligned"],
+    ap.add_argument("--methods", nargs="*", default=["auto", "two_band", "aligned"],
                     choices=["auto", "median", "aligned", "two_band", "warped"], help="synthesize.detail values compared")
     ap.add_argument("--model", default=str(ROOT / "models" / "base"), help="the model of the grid_s4 and strangers sets")
     ap.add_argument("--people", type=Path, default=ROOT / "runs" / "diagnosis",
                     help="bench/person_diagnosis.py's work folder (personalized models and their footage)")
+    ap.add_argument("--people-methods", nargs="*", default=["auto"], help="the methods run on the people set "
+                    "(default: auto, what users get; each person's speak runs are the slowest)")
     ap.add_argument("--faces", type=int, default=2, help="people: training segments each held-out part's words go into")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a params.yaml key for every method (repeatable)")
@@ -204,6 +206,8 @@ def main() -> None:
         params = WORK / f"params_{method}.yaml"
         params.write_text(yaml.safe_dump(dict(base, synthesize=dict(base["synthesize"], detail=method)), sort_keys=False))
         for pair in pairs:
+            if pair["set"] == "people" and method not in a.people_methods:
+                continue
             row = dict(pair, method=method)
             for kind, face in (("cross", pair["face"]), ("self", pair["words"])):
                 if kind == "self" and a.no_self:
@@ -217,7 +221,8 @@ def main() -> None:
                   flush=True)
     sets = [s for s in ("grid_s4", "strangers", "people") if any(r["set"] == s for r in rows)]
     meds = {f"{s}/{m}": {kind: medians([r[kind] for r in rows if r["set"] == s and r["method"] == m and kind in r])
-                         for kind in ("cross", "self")} for s in sets for m in a.methods}
+                         for kind in ("cross", "self")} for s in sets for m in a.methods
+            if any(r["set"] == s and r["method"] == m for r in rows)}
     print(json.dumps(meds, indent=1))
     if a.dry:
         return

@@ -310,10 +310,22 @@ def prepare_target(target: str, params: Params, model: str, cache: Path | None =
         report["distinct_mouth_shapes"] = n_shapes
         if n_shapes < p.speak.min_mouth_shapes:
             log.warning("%s: the target covers only %d distinct mouth shapes (%d usable frames; "
-                        "speak.min_mouth_shapes=%d): mouths will repeat and miss shapes — a longer target video "
-                        "of this person helps", target, n_shapes, len(own), p.speak.min_mouth_shapes)
+                        "speak.min_mouth_shapes=%d): mouths it never showed are made by warping the nearest ones "
+                        "(synthesize.detail: auto → aligned) — a longer target video of this person helps", target, n_shapes, len(own),
+                        p.speak.min_mouth_shapes)
     log.info("speak: %s", report["path"])
     return p, stores, entry, report
+
+
+def few_shapes(report: dict, p: Params) -> bool:
+    """Does ``synthesize.detail: auto`` take ``aligned`` for this target? When another person's target covers fewer
+    than ``speak.min_mouth_shapes`` distinct mouth shapes, the words' mouths are mostly not among its frames, and
+    repeating the nearest (median, two_band) shows the few it has: warped onto the wanted shapes instead, the
+    rendered opening follows the model (bench/cross_clip.py, GRID s4's 3-s targets: cross-clip opening corr
+    per method on docs/cross_clip.md). Self-replay scores lower with it: its true frames, which two_band's
+    Viterbi replays, are not what a dub has."""
+    n = report.get("distinct_mouth_shapes")
+    return p.synthesize.detail == "auto" and n is not None and n < p.speak.min_mouth_shapes
 
 
 def prepare(audio: str, target: str, params: Params, model: str | None = None, retime: bool = True,
@@ -339,6 +351,10 @@ def prepare(audio: str, target: str, params: Params, model: str | None = None, r
             p, stores, entry, report = prepare_target(target, params, model, cache, cluster)
         report["audio_domain"] = domain
         p.synthesize.audio, p.synthesize.retime, p.synthesize.model = str(audio), retime, str(model)
+        if few_shapes(report, p):
+            p.synthesize.detail = "aligned"
+            log.info("synthesize.detail: auto → aligned (the target covers %d distinct mouth shapes: the nearest "
+                     "mouths are warped onto each wanted shape rather than repeated)", report["distinct_mouth_shapes"])
         p.synthesize.emotion = emotion
         p.composite.diagnostic = diagnostic
         return Prepared(p, stores, entry, mouth.result() if entry["fps"] == fps else None, report)

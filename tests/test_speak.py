@@ -67,6 +67,23 @@ def test_distinct_shapes_counts_clearly_different_mouths():
     assert distinct_shapes(nan, 1.0) == 5
 
 
+def test_auto_detail_warps_mouths_for_a_target_with_few_shapes_only():
+    """Another person's target with fewer distinct mouths than speak.min_mouth_shapes: synthesize.detail auto →
+    aligned; a target with enough, the model's own speaker (no count) or a detail set by hand: unchanged."""
+    import copy
+    from lipsynth.speak import few_shapes
+    from pipeline.params import load_params
+    p = load_params()
+    assert p.synthesize.detail == "auto"
+    n = p.speak.min_mouth_shapes
+    assert few_shapes(dict(distinct_mouth_shapes=n - 1), p)
+    assert not few_shapes(dict(distinct_mouth_shapes=n), p)
+    assert not few_shapes(dict(path="same speaker"), p)
+    q = copy.deepcopy(p)
+    q.synthesize.detail = "two_band"
+    assert not few_shapes(dict(distinct_mouth_shapes=1), q)
+
+
 def test_stage_advice_about_training_corpora_is_removed_for_speak():
     from lipsynth.target import without_training_hints
     msg = "/v/wall.mp4: no face found in 9 sampled frames (set data.on_bad_input: skip to leave such videos out)"
