@@ -88,7 +88,7 @@ def people_pairs(root: Path, faces: int) -> list[dict]:
     out = []
     for work in sorted(p for p in root.iterdir() if (p / "model").is_dir() and (p / "w" / "store").is_dir()):
         videos = open_group(str(work / "w" / "store" / "ingest.zarr")).attrs["videos"]
-        footage = work / "w" / "footage"
+        file = lambda v: str((ROOT / v["path"]).resolve())        # the store names its videos from the project root
         val = [v for v in videos if v["split"] == "val"]
         train = [v for v in videos if v["split"] == "train"]
         if not val or not train:
@@ -96,8 +96,7 @@ def people_pairs(root: Path, faces: int) -> list[dict]:
         words = val[0]
         before = sorted((v for v in train if v["name"] < words["name"]), key=lambda v: v["name"]) or train
         for face in before[::-1][:faces]:
-            out.append(dict(set="people", person=work.name, words=str(footage / f"{words['name']}.mp4"),
-                            face=str(footage / f"{face['name']}.mp4"), model=str(work / "model")))
+            out.append(dict(set="people", person=work.name, words=file(words), face=file(face), model=str(work / "model")))
     return out
 
 

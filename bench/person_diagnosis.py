@@ -183,9 +183,10 @@ def speak_stages(model: Path, work: Path, store: Path, held: str, cache: Path, r
     done = work / f"stages{TAG}.json"
     if reuse and done.is_file():
         return json.loads(done.read_text())
-    names = [v["name"] for v in open_group(str(store / "ingest.zarr")).attrs["videos"] if v["split"] == "train"]
-    before = [n for n in names if n < Path(held).stem] or names
-    face = str(Path(held).with_name(max(before) + ".mp4"))
+    train = {v["name"]: str((ROOT / v["path"]).resolve()) for v in open_group(str(store / "ingest.zarr")).attrs["videos"]
+             if v["split"] == "train"}
+    before = [n for n in train if n < Path(held).stem] or list(train)
+    face = train[max(before)]
     res = {kind: ss.run(str(model), held, target, held, str(ROOT / "params.yaml"), [], cache)
            for kind, target in (("self", held), ("cross", face))}
     done.write_text(json.dumps(res, indent=1))
