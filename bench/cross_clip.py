@@ -22,7 +22,7 @@ Sets:
   segments before it, with the person's own model.
 
 Self-replay (the words' own clip as the face) is measured beside each pair. Writes
-``results/cross_clip.json`` (commit, date, machine), ``results/cross_clip.png`` and ``docs/cross_clip.md``.
+``results/cross_clip.json`` (commit, date, machine), ``docs/cross_clip.png`` and ``docs/cross_clip.md``.
 """
 from __future__ import annotations
 
@@ -135,7 +135,9 @@ def page(summary: dict) -> str:
              "(a person the base never met; clip 2i's words into clip 2i + 1), the strangers of at least 10 s (the second "
              "half's words into the first half), personalized people (their held-out part's words into the training parts "
              "before it, with their own model). Medians over the pairs; sharpness and flicker are output ÷ original "
-             "(1 = as the real mouth).", "",
+             "(1 = as the real mouth). Mouth error, sharpness and flicker are read in the words' footage's mouth box: "
+             "they compare like with like where both clips frame the face alike (the halves, a person's parts), not on "
+             "GRID s4, whose clips place the head differently.", "",
              "| set | method | pairs | cross-clip corr lag 0 / best | self-replay corr lag 0 / best | cross-clip mouth error / static | sharpness | flicker |",
              "|---|---|---|---|---|---|---|---|"]
     for key, m in s["medians"].items():
@@ -144,7 +146,7 @@ def page(summary: dict) -> str:
         lines.append(f"| {st} | {method} | {c['n']}{' (%d failed)' % c['failed'] if c['failed'] else ''} | "
                      f"{c['corr']:.2f} / {c['corr_best']:.2f} | {r['corr']:.2f} / {r['corr_best']:.2f} | {c['err_ratio']:.2f} | "
                      f"{c['sharp']:.2f} | {c['flicker']:.2f} |")
-    lines += ["", "![cross-clip and self-replay opening correlation per set and method](../results/cross_clip.png)", "",
+    lines += ["", "![cross-clip and self-replay opening correlation per set and method](cross_clip.png)", "",
               "Per pair (cross-clip corr lag 0 / best):", ""]
     for r in s["rows"]:
         c = r["cross"]
@@ -227,7 +229,7 @@ def main() -> None:
         return
     summary = dict(stamp(), model=str(Path(a.model).resolve().relative_to(ROOT)) if Path(a.model).resolve().is_relative_to(ROOT)
                    else a.model, settings=a.set, methods=a.methods, medians=meds, rows=rows)
-    plot(summary, ROOT / "results" / "cross_clip.png")
+    plot(summary, ROOT / "docs" / "cross_clip.png")
     publish("cross_clip", summary, page(summary))
 
 
