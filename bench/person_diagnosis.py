@@ -210,7 +210,7 @@ def stage_cells(r: dict) -> str:
 def table(rows: list[dict]) -> str:
     lines = ["| person | held out | floor: re-encode ratio / corr | mouth variance following speech | in-store ratio (corr): "
              "base · readout · encoder_readout · average · retrieval · fine_tune | kept | `speak` ratio / corr lag 0 / best | `speak` sharpness / "
-             "flicker (yardstick: original ÷ output) | oracle render ratio / corr | model alone: predicted vs tracked, lag 0 / best | "
+             "flicker (yardstick: output ÷ original) | oracle render ratio / corr | model alone: predicted vs tracked, lag 0 / best | "
              "`speak` self-replay: candidates · output, lag 0 / best | `speak` cross-clip: output, lag 0 / best |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
