@@ -83,6 +83,16 @@ def retarget(lips: np.ndarray, model_mean: np.ndarray, target_shapes: np.ndarray
     return Retarget.fit(lips, model_mean, target_shapes, max_spread_gain)(lips)
 
 
+def spread_gain(own: np.ndarray, predicted: np.ndarray, max_gain: float) -> float:
+    """RMS spread of ``own`` deviations (M, 18, 2) over that of ``predicted`` ones (N, 18, 2), clipped to
+    [1, ``max_gain``]: how much to widen predicted mouth motion (never narrowed; 1 when undefined)."""
+    if max_gain <= 1.0:
+        return 1.0
+    rms = lambda d: float(np.sqrt(np.nanmean(np.sum(d ** 2, axis=-1))))
+    o, p = rms(own), rms(predicted)
+    return float(np.clip(o / p, 1.0, max_gain)) if p > 0 and np.isfinite(o) else 1.0
+
+
 @dataclasses.dataclass
 class Retarget:
     """The map of ``retarget``: shapes (..., 18, 2) → target_mean + centre + (moved − centre) · gain, with
@@ -101,11 +111,7 @@ class Retarget:
         width = lambda s: np.linalg.norm(s[6] - s[0])                 # 48 → 54, the mouth corners
         scale = width(target_mean) / width(model_mean)
         moved = (lips - model_mean) * scale
-        gain = 1.0
-        if max_spread_gain > 1.0:
-            rms = lambda d: float(np.sqrt(np.nanmean(np.sum(d ** 2, axis=-1))))
-            own, predicted = rms(target_shapes - target_mean), rms(moved - moved.mean(0))
-            gain = float(np.clip(own / predicted, 1.0, max_spread_gain)) if predicted > 0 and np.isfinite(own) else 1.0
+        gain = spread_gain(target_shapes - target_mean, moved - moved.mean(0), max_spread_gain)
         log.info("re-targeting predicted mouth shapes onto the target's mean mouth (offset %.1f px, width × %.2f, "
                  "spread × %.2f)", float(np.linalg.norm((target_mean - model_mean).mean(0))), scale, gain)
         return cls(model_mean, target_mean, scale, moved.mean(0), gain)
@@ -128,10 +134,8 @@ def widen(lips: np.ndarray, pool_shapes: np.ndarray, max_gain: float) -> np.ndar
     output follows the prediction at ≈ 0.5. The gain is affine: the prediction's correlation with the
     speech is kept. lips : (N, 18, 2); pool_shapes : (M, 18, 2) texture px → (N, 18, 2).
     """
-    rms = lambda d: float(np.sqrt(np.nanmean(np.sum(d ** 2, axis=-1))))
     centre = lips.mean(0)
-    own, predicted = rms(pool_shapes - np.nanmean(pool_shapes, 0)), rms(lips - centre)
-    gain = float(np.clip(own / predicted, 1.0, max_gain)) if predicted > 0 and np.isfinite(own) else 1.0
+    gain = spread_gain(pool_shapes - np.nanmean(pool_shapes, 0), lips - centre, max_gain)
     log.info("predicted mouth motion widened toward the candidate pool's own (spread × %.2f)", gain)
     return centre + (lips - centre) * gain
 
