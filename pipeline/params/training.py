@@ -35,6 +35,8 @@ class Train(Section):
     fine_tune: str = "all"
     train_seconds: float | None = None
     seed: int = 0
+    velocity_weight: float = field(default=0.0, metadata={"min": 0.0})
+    opening_corr_weight: float = field(default=0.0, metadata={"min": 0.0})
     device: str = "auto"
     bank_frames: int = field(default=3000, metadata={"min": 1})
     identity_frames: int = field(default=60, metadata={"min": 1})

@@ -62,8 +62,59 @@ def masked_l2(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> t
     return (se * mask).sum() / mask.sum().clamp(min=1)
 
 
+def velocity_l2(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean over pairs of valid consecutive steps of the squared error of the motion (canonical px² per 10 ms²).
+
+    pred, target (B, L, K), mask (B, L) float: the shape error says nothing of how a mouth moves; this does."""
+    both = mask[:, 1:] * mask[:, :-1]
+    se = (((pred[:, 1:] - pred[:, :-1]) - (target[:, 1:] - target[:, :-1])) ** 2).sum(-1)
+    return (se * both).sum() / both.sum().clamp(min=1)
+
+
+def opening_decorrelation(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor,
+                          opening: torch.Tensor) -> torch.Tensor:
+    """1 − the correlation over time of the predicted and true inner-lip opening, averaged over streams.
+
+    ``opening`` (K,): the opening's gradient in the PCA coefficients (``opening_direction``), so the opening
+    of a shape y is y · opening up to a constant. Streams with fewer than 10 valid steps, or with a still true
+    mouth, are left out (a correlation needs motion)."""
+    a, b = pred @ opening, target @ opening                                    # (B, L)
+    n = mask.sum(1)
+    ma = (a * mask).sum(1) / n.clamp(min=1)
+    mb = (b * mask).sum(1) / n.clamp(min=1)
+    da, db = (a - ma[:, None]) * mask, (b - mb[:, None]) * mask
+    cov = (da * db).sum(1)
+    va, vb = (da ** 2).sum(1), (db ** 2).sum(1)
+    ok = (n >= 10) & (vb > 1e-6 * n.clamp(min=1))
+    if not bool(ok.any()):
+        return pred.sum() * 0.0
+    corr = cov[ok] / torch.sqrt(va[ok] * vb[ok] + 1e-12)
+    return (1.0 - corr).mean()
+
+
+def opening_direction(basis: dict, top: int = 13, bottom: int = 16) -> np.ndarray:
+    """(K,) float32: d(opening)/d(coefficients) for the PCA ``basis`` (mean (2P,), components (K, 2P)) of the
+    18 lip points: the vertical distance from inner-lip point ``top`` (62) to ``bottom`` (66) is
+    linear in the coefficients (canonical texture px)."""
+    comp = np.asarray(basis["components"], np.float64).reshape(len(basis["components"]), -1, 2)
+    return (comp[:, bottom, 1] - comp[:, top, 1]).astype(np.float32)
+
+
+def shape_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, p: Train,
+               opening: torch.Tensor | None) -> torch.Tensor:
+    """The training loss: the paper's L2 on the shape, plus ``p.velocity_weight`` × ``velocity_l2`` and
+    ``p.opening_corr_weight`` × ``opening_decorrelation`` (both 0 by default: the paper's loss alone)."""
+    loss = masked_l2(pred, target, mask)
+    if p.velocity_weight:
+        loss = loss + p.velocity_weight * velocity_l2(pred, target, mask)
+    if p.opening_corr_weight and opening is not None:
+        loss = loss + p.opening_corr_weight * opening_decorrelation(pred, target, mask, opening)
+    return loss
+
+
 def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: int = 0,
-          desc: str = "lstm", budget: Budget | None = None, init: dict | None = None) -> tuple[DelayedLSTM, list[dict], int]:
+          desc: str = "lstm", budget: Budget | None = None, init: dict | None = None,
+          opening: np.ndarray | None = None) -> tuple[DelayedLSTM, list[dict], int]:
     """Train one model for a budget of optimizer steps (``pipeline.models.training_budget``).
 
     Parameters
@@ -76,6 +127,8 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
         of random weights; ``p.fine_tune == "output"`` then trains the read-out layer only. With
         ``init["anchor"]`` = λ > 0 the loss adds λ · Σ ‖θ − θ₀‖² over the trained weights (L2-SP:
         fine-tuning pulled toward its starting point, ``stages/train/adapt.py``).
+    opening : (n_out,) the opening's direction in the outputs (``opening_direction``), for
+        ``p.opening_corr_weight``; the validation loss stays the L2 on the shape.
 
     Returns
     -------
@@ -91,6 +144,7 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
     model, trained = initial_model(train_seqs[0][0].shape[-1], train_seqs[0][1].shape[1], p, device, init)
     opt = adam(trained, p.lr)
     anchor = float(init.get("anchor", 0.0)) if init else 0.0
+    opening_t = None if opening is None else torch.as_tensor(opening, dtype=torch.float32, device=device)
     start = [w.detach().clone() for w in trained] if anchor else []
     # x may hold K variants (K, m, n_in) of the same audio (VTLP copies): each epoch draws one per video
     variants = [[delayed_pairs(xv, y, ok, delay) for xv in (x if x.ndim == 3 else x[None])] for x, y, ok in train_seqs]
@@ -110,7 +164,7 @@ def train(train_seqs: list, val_seqs: list, p: Train, delay: int, device, seed: 
         for a in range(0, X.shape[1], p.bptt):
             pred, state = model(X[:, a:a + p.bptt], state)
             state = tuple(s.detach() for s in state)
-            loss = masked_l2(pred, Y[:, a:a + p.bptt], M[:, a:a + p.bptt].float())
+            loss = shape_loss(pred, Y[:, a:a + p.bptt], M[:, a:a + p.bptt].float(), p, opening_t)
             opt.zero_grad()
             if anchor:
                 pull = sum(((w - w0) ** 2).sum() for w, w0 in zip(trained, start))

@@ -120,7 +120,8 @@ def augmented_copies(data: dict, ingest_path: str, warps: list, shifts: list, fe
     return time.perf_counter() - t0
 
 
-def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm", init: dict | None = None):
+def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm", init: dict | None = None,
+             opening: np.ndarray | None = None):
     from stages.train import lstm
     norm = lambda s: ((s["x"] - mean) / std, s["y"], s["ok"])
 
@@ -129,7 +130,7 @@ def fit_lstm(data: dict, p: Train, delay: int, device, mean, std, desc="lstm", i
             return norm(s)
         return (np.concatenate([s["x"][None], s["x_aug"]]) - mean) / std, s["y"], s["ok"]
     model, history, kept = lstm.train([norm_train(s) for s in data["train"]], [norm(s) for s in data["val"]], p, delay,
-                                      device, seed=p.seed, desc=desc, init=init)
+                                      device, seed=p.seed, desc=desc, init=init, opening=opening)
     preds = [lstm.predict_sequence(model, norm(s)[0], delay, device) for s in data["val"]]
     return model, history, preds, kept
 
@@ -183,7 +184,9 @@ def run(params: Params, ingest_path: str, pca_path: str, landmarks_path: str | N
              p.features, mean.shape[0], len(data["train"]), sum(len(s["x"]) for s in data["train"]), len(data["val"]),
              device)
     t0 = time.perf_counter()
-    model, history, preds, kept = fit_lstm(data, p, p.delay, device, mean, std, init=init)
+    from stages.train.lstm import opening_direction
+    model, history, preds, kept = fit_lstm(data, p, p.delay, device, mean, std, init=init,
+                                           opening=opening_direction(basis))
     clock = {"fit_s": time.perf_counter() - t0, "steps": history[-1]["step"]}
     clock["seconds_per_step"] = clock["fit_s"] / max(clock["steps"], 1)
     best = kept_point(history, kept)
