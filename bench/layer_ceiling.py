@@ -46,6 +46,8 @@ OFFS = np.arange(-30, 31, 6)                 # 100-Hz context offsets (±300 ms)
 CACHE = ROOT / "runs" / "layer_ceiling"
 PEOPLE = ("obama", "grid_s4", "lieu", "macron", "hdtf_aoc", "hdtf_hill", "sky_drive2", "latsync_demo2",
           "latsync_demo3")
+SHIPPABLE_PEOPLE = ("obama", "hdtf_aoc", "hdtf_hill")      # US federal government works (weekly addresses)
+SHIPPABLE_CLASSES = ("public_domain", "cc0", "cc_by")
 SAME_PERSON = {"barack_obama": "obama", "grid_s4": "grid_s4"}     # corpus people who are people above
 LAYER_NAMES = ["stem", "block1", "block2", "block3", "block4", "final"]
 
@@ -73,22 +75,30 @@ def standardised_truth(truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return m, (truth[m] - truth[m].mean()) / (truth[m].std() + 1e-9)
 
 
-def stats(x: np.ndarray, y: np.ndarray) -> dict:
-    """Sufficient statistics of one person's rows for a ridge solve."""
-    return dict(n=len(x), sx=x.sum(0), sxx=x.T @ x, sxy=x.T @ y)
+def stats(rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> dict:
+    """Sufficient statistics (n, Σx, Σxxᵀ, Σxy) of one person's clips' valid rows for a ridge solve."""
+    out = None
+    for x, y, m in rows:
+        xm = x[m]
+        part = dict(n=len(xm), sx=xm.sum(0), sxx=xm.T @ xm, sxy=xm.T @ y)
+        out = part if out is None else {k: out[k] + part[k] for k in out}
+    return out
 
 
-def solve(parts: list[dict], lam: float) -> tuple:
+def combined(parts: list[dict], minus: dict | None = None) -> dict:
+    """The sum of several people's statistics, less ``minus``'s (a leave-one-out fold)."""
+    total = {k: sum(p[k] for p in parts) for k in parts[0]}
+    return {k: total[k] - minus[k] for k in total} if minus else total
+
+
+def solve(st: dict, lam: float) -> tuple:
     """Ridge on standardised inputs (λ · n on the diagonal) from summed statistics: (mu, sd, w)."""
-    n = sum(p["n"] for p in parts)
-    sx = sum(p["sx"] for p in parts)
-    sxx = sum(p["sxx"] for p in parts)
-    sxy = sum(p["sxy"] for p in parts)
-    mu = sx / n
-    cov = sxx / n - np.outer(mu, mu)
+    n = st["n"]
+    mu = st["sx"] / n
+    cov = st["sxx"] / n - np.outer(mu, mu)
     sd = np.sqrt(np.maximum(np.diag(cov), 0)) + 1e-6
     a = cov / np.outer(sd, sd) + lam * np.eye(len(mu))
-    b = (sxy / n) / sd                                        # targets are zero-mean per clip
+    b = (st["sxy"] / n) / sd                                  # targets are zero-mean per clip
     return mu, sd, np.linalg.solve(a, b)
 
 
@@ -103,9 +113,17 @@ def scores(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return lag0, float(np.corrcoef(x[g], y[g])[0, 1])
 
 
-def load_people(a) -> dict[str, list[dict]]:
-    """Person → clips (name, path, fps, truth) of every set at hand."""
+def load_people(a) -> tuple[dict[str, list[dict]], set[str]]:
+    """Person → clips (name, path, fps, truth) of every set at hand, and the people whose footage may train
+    shipped weights (GRID s1, the weekly addresses, the corpus' public-domain and CC clips)."""
     groups: dict[str, list[dict]] = {}
+    shippable = {f"person:{p}" for p in SHIPPABLE_PEOPLE}
+    if a.grid and (a.grid / "landmarks.zarr").exists():
+        grid = clips_of(a.grid / "landmarks.zarr")
+        for c in grid:
+            c["path"] = str(a.grid_videos / Path(c["path"]).name)
+        groups["grid_s1"] = grid
+        shippable.add("grid_s1")
     for mp4 in sorted(a.strangers.glob("*.mp4")):
         found = sorted(a.cache.glob(f"{mp4.stem}-*/landmarks.zarr"))
         if found:
@@ -127,7 +145,9 @@ def load_people(a) -> dict[str, list[dict]]:
                 person = clip["person"]
                 key = f"person:{SAME_PERSON[person]}" if person in SAME_PERSON else f"corpus:{person}"
                 groups.setdefault(key, []).extend(cs)
-    return groups
+                if clip["licence_class"] in SHIPPABLE_CLASSES and key.startswith("corpus:"):
+                    shippable.add(key)
+    return groups, shippable
 
 
 def track_corpus(corpus: Path) -> None:
@@ -159,12 +179,30 @@ def person_rows(groups: dict, build) -> dict[str, list[tuple[np.ndarray, np.ndar
 
 def leave_one_out(rows: dict, lam: float) -> dict[str, dict]:
     """Each person's lag-0 and best-lag correlation (medians over their clips) from a ridge fitted on the others."""
-    st = {g: [stats(x[m], y) for x, y, m in r] for g, r in rows.items()}
+    total = None
+    for r in rows.values():                   # one person's statistics at a time (each is D² floats)
+        part = stats(r)
+        total = part if total is None else combined([total, part])
     out = {}
     for g, r in rows.items():
-        mu, sd, w = solve(sum((v for k, v in st.items() if k != g), []), lam)
+        mu, sd, w = solve(combined([total], stats(r)), lam)
         s = [scores(((x - mu) / sd) @ w, truth_of(y, m)) for x, y, m in r]
         out[g] = dict(lag0=float(np.median([a for a, _ in s])), best=float(np.median([b for _, b in s])))
+    return out
+
+
+def transfer(rows: dict, train: set[str], lam: float) -> dict[str, dict]:
+    """Each person outside ``train``: lag-0 and best-lag correlation from one ridge fitted on ``train``'s people."""
+    total = None
+    for g in train:
+        part = stats(rows[g])
+        total = part if total is None else combined([total, part])
+    mu, sd, w = solve(total, lam)
+    out = {}
+    for g, r in rows.items():
+        if g not in train:
+            s = [scores(((x - mu) / sd) @ w, truth_of(y, m)) for x, y, m in r]
+            out[g] = dict(lag0=float(np.median([a for a, _ in s])), best=float(np.median([b for _, b in s])))
     return out
 
 
@@ -190,34 +228,37 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=ROOT / "runs" / "strangers" / "cache", help="the strangers' speak cache")
     ap.add_argument("--corpus", type=Path, default=ROOT / "runs" / "natural_corpus", help="bench/natural_corpus.py's output")
     ap.add_argument("--lam", type=float, default=0.3, help="ridge strength (× frames, on standardised inputs)")
+    ap.add_argument("--grid", type=Path, default=ROOT / "runs" / "grid3_L3" / "store",
+                    help="GRID s1 stores (bench/shipped_base.py --every 3's); trained on in the shippable protocol")
+    ap.add_argument("--grid-videos", type=Path, default=ROOT.parent / "shared" / "data" / "grid_s1" / "video")
     ap.add_argument("--track", action="store_true", help="first track the corpus clips' landmarks (once)")
     a = ap.parse_args()
     if a.track:
         track_corpus(a.corpus)
-    groups = load_people(a)
+    groups, shippable = load_people(a)
     clips = [c for cs in groups.values() for c in cs]
-    print(f"{len(groups)} people, {len(clips)} clips, {sum(len(c['truth']) for c in clips)} frames", flush=True)
+    print(f"{len(groups)} people ({len(shippable)} shippable), {len(clips)} clips, "
+          f"{sum(len(c['truth']) for c in clips)} frames", flush=True)
     layers = {c["path"]: clip_layers(c["path"]) for c in clips}
-    results = {}
-    for k, name in enumerate(LAYER_NAMES):
-        rows = person_rows(groups, lambda c, k=k: design(layers[c["path"]][k], c["fps"], len(c["truth"])))
-        results[name] = leave_one_out(rows, a.lam)
-        print(name, summarise(results[name]), flush=True)
-    bases = [pca_basis([layers[p][k] for p in layers], 64) for k in range(N_LAYERS)]
+    results: dict[str, dict] = {"loo": {}, "shippable": {}}
 
-    def mixed(c):
-        s = np.concatenate([(layers[c["path"]][k] - mu) @ v for k, (mu, v) in enumerate(bases)], 1)
-        return design(s, c["fps"], len(c["truth"]))
-    results["mix_all"] = leave_one_out(person_rows(groups, mixed), a.lam)
-    print("mix_all", summarise(results["mix_all"]), flush=True)
-    ranked = sorted(LAYER_NAMES, key=lambda n: -summarise(results[n])["all"]["lag0"])[:2]
+    def gauge(name: str, build) -> None:
+        rows = person_rows(groups, build)
+        results["loo"][name] = leave_one_out({g: r for g, r in rows.items() if g != "grid_s1"}, a.lam)
+        results["shippable"][name] = transfer(rows, shippable, a.lam)
+        print(name, "LOO", summarise(results["loo"][name]), "| shippable →", summarise(results["shippable"][name]),
+              flush=True)
+    for k, name in enumerate(LAYER_NAMES):
+        gauge(name, lambda c, k=k: design(layers[c["path"]][k], c["fps"], len(c["truth"])))
+    bases = [pca_basis([layers[p][k] for p in layers], 64) for k in range(N_LAYERS)]
+    gauge("mix_all", lambda c: design(np.concatenate([(layers[c["path"]][k] - mu) @ v for k, (mu, v) in enumerate(bases)],
+                                                     1), c["fps"], len(c["truth"])))
+    ranked = sorted(LAYER_NAMES, key=lambda n: -summarise(results["loo"][n])["all"]["lag0"])[:2]
     pair = sorted(LAYER_NAMES.index(n) for n in ranked)
-    results["mix_best2"] = leave_one_out(person_rows(groups, lambda c: design(
-        np.concatenate([layers[c["path"]][k] for k in pair], 1), c["fps"], len(c["truth"]))), a.lam)
-    print("mix_best2", [LAYER_NAMES[k] for k in pair], summarise(results["mix_best2"]), flush=True)
+    gauge("mix_best2", lambda c: design(np.concatenate([layers[c["path"]][k] for k in pair], 1), c["fps"], len(c["truth"])))
     out = dict(stamp(), lam=a.lam, offsets_100hz=OFFS.tolist(), best2=[LAYER_NAMES[k] for k in pair],
-               people={g: len(cs) for g, cs in groups.items()}, results=results,
-               summary={n: summarise(r) for n, r in results.items()})
+               people={g: len(cs) for g, cs in groups.items()}, shippable=sorted(shippable), results=results,
+               summary={k: {n: summarise(r) for n, r in v.items()} for k, v in results.items()})
     publish("layer_ceiling", out, page(out))
 
 
@@ -236,41 +277,54 @@ def summarise(r: dict[str, dict]) -> dict:
 
 
 def page(out: dict) -> str:
-    """The page: a plot of each front end's medians per set, and the table beside it."""
+    """The page: a plot of each front end's medians per set under both protocols, and the tables."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    names = list(out["summary"])
-    sets = [s for s in ("strangers", "people", "corpus", "grid_s4") if s in out["summary"][names[0]]]
-    fig, ax = plt.subplots(figsize=(8, 3.6))
-    for j, s in enumerate(sets):
-        ax.bar(np.arange(len(names)) + (j - len(sets) / 2 + 0.5) * 0.8 / len(sets),
-               [out["summary"][n][s]["lag0"] for n in names], 0.8 / len(sets), label=s)
-    ax.set_xticks(range(len(names)), names, rotation=20)
-    ax.set_ylabel("read-out corr, lag 0 (LOO person)")
-    ax.legend(fontsize=8)
-    ax.grid(axis="y", alpha=0.3)
+    protocols = {"loo": "ceiling: trained on every other person (LOO)",
+                 "shippable": "transfer: trained on shippable footage only"}
+    names = list(out["summary"]["loo"])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharey=True)
+    for ax, (key, title) in zip(axes, protocols.items()):
+        sets = [s for s in ("strangers", "people", "corpus", "grid_s4") if s in out["summary"][key][names[0]]]
+        for j, st in enumerate(sets):
+            ax.bar(np.arange(len(names)) + (j - len(sets) / 2 + 0.5) * 0.8 / len(sets),
+                   [out["summary"][key][n][st]["lag0"] for n in names], 0.8 / len(sets), label=st)
+        ax.set_xticks(range(len(names)), names, rotation=25)
+        ax.set_title(title, fontsize=9)
+        ax.grid(axis="y", alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0].set_ylabel("read-out corr with tracked opening, lag 0")
     fig.tight_layout()
-    png = ROOT / "docs" / "layer_ceiling.png"
-    fig.savefig(png, dpi=110)
-    lines = ["# Where articulation lives in Whisper tiny.en: the read-out ceiling per layer", "",
-             f"Written by `python bench/layer_ceiling.py` (commit {out['commit']}, {out['date']}); "
-             f"{len(out['people'])} people, ridge λ = {out['lam']}, context ±300 ms. "
-             "Each figure: a linear read-out trained on every other person, correlated with the held-out person's "
-             "tracked inner-lip opening (median over the set's people; lag 0 / best lag within ±5 frames). "
-             "`final` is what the shipped `whisper` front end reads.", "",
-             f"![read-out ceiling per layer]({png.name})", "",
-             "| front end | " + " | ".join(sets) + " |", "|---|" + "---|" * len(sets)]
-    for n in names:
-        cells = []
-        for s in sets:
-            v = out["summary"][n][s]
-            cells.append(f"{v['lag0']:.2f} / {v['best']:.2f}")
-        lines.append(f"| {n} | " + " | ".join(cells) + " |")
-    lines += ["", f"`mix_best2` joins {' and '.join(out['best2'])}. Per person:", "",
-              "| person | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    fig.savefig(ROOT / "docs" / "layer_ceiling.png", dpi=110)
+    plt.close(fig)
+    lines = ["# Where articulation lives in Whisper tiny.en: the read-out per layer", "",
+             f"Written by `python bench/layer_ceiling.py` (commit {out['commit']}, {out['date']}, {out['machine']}); "
+             f"{len(out['people'])} people, ridge λ = {out['lam']}, context ±300 ms. A linear read-out of one "
+             "front end's states, correlated with a held-out person's tracked inner-lip opening (median over a set's "
+             "people; lag 0 / best lag within ±5 frames). `final` is what the shipped `whisper` front end reads; "
+             f"`mix_best2` joins {' and '.join(out['best2'])}; `mix_all` joins every layer's first 64 principal "
+             "components.", "",
+             "![read-out per layer](layer_ceiling.png)", ""]
+    for key, title in protocols.items():
+        sets = [s for s in ("strangers", "people", "corpus", "grid_s4") if s in out["summary"][key][names[0]]]
+        lines += [f"## {title[0].upper()}{title[1:]}", ""]
+        if key == "shippable":
+            lines += ["Trained on: " + ", ".join(f"`{g}`" for g in out["shippable"]) + "; scored on everyone else.", ""]
+        lines += ["| front end | " + " | ".join(sets) + " |", "|---|" + "---|" * len(sets)]
+        for n in names:
+            lines.append(f"| {n} | " + " | ".join(f"{out['summary'][key][n][st]['lag0']:.2f} / "
+                                                  f"{out['summary'][key][n][st]['best']:.2f}" for st in sets) + " |")
+        lines.append("")
+    lines += ["## Per person (lag 0; ceiling / transfer)", "", "| person | " + " | ".join(names) + " |",
+              "|---|" + "---|" * len(names)]
     for g in out["people"]:
-        lines.append(f"| {g} | " + " | ".join(f"{out['results'][n][g]['lag0']:.2f}" for n in names) + " |")
+        cells = []
+        for n in names:
+            lo, tr = out["results"]["loo"][n].get(g), out["results"]["shippable"][n].get(g)
+            cells.append(f"{lo['lag0']:.2f}" if lo else "–")
+            cells[-1] += f" / {tr['lag0']:.2f}" if tr else " / train"
+        lines.append(f"| {g} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

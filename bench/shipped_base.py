@@ -73,9 +73,10 @@ def corpus_line(corpus: str, people: list[str]) -> str:
     return line + "".join(f" + {spec.partition('=')[0]} ({spec.partition('=')[2]})" for spec in people)
 
 
-def base_params(corpus: str, steps: int, run_dir: Path, whisper_layers: list[int] | None = None) -> dict:
+def base_params(corpus: str, steps: int, run_dir: Path, whisper_layers: list[int] | None = None,
+                overrides: list[str] = ()) -> dict:
     """params.yaml + configs/grid_s1.yaml + the shipped front end (``whisper_layers``: another choice of encoder
-    layers), outputs under ``run_dir``."""
+    layers; ``overrides``: ``SECTION.KEY=VALUE`` settings), outputs under ``run_dir``."""
     shipped = yaml.safe_load((ROOT / "params.yaml").read_text())
     tree = yaml.safe_load((ROOT / "params.yaml").read_text())
     for section, values in yaml.safe_load((ROOT / "configs" / "grid_s1.yaml").read_text()).items():
@@ -89,6 +90,12 @@ def base_params(corpus: str, steps: int, run_dir: Path, whisper_layers: list[int
                          out=str(run_dir / "base_shipped" / "model"),
                          metrics=str(run_dir / "base_shipped" / "train.json"),
                          plots=str(run_dir / "base_shipped" / "train_loss.csv"))
+    for item in overrides:
+        key, eq, value = item.partition("=")
+        section, dot, name = key.partition(".")
+        if not (eq and dot and section in tree and name in tree[section]):
+            raise SystemExit(f"bench/shipped_base.py: --set {item!r}: write SECTION.KEY=VALUE with a key of params.yaml")
+        tree[section][name] = yaml.safe_load(value)
     tree["train"]["feature_store"] = front_end_store(tree)
     return as_dict(parse(tree, "bench/shipped_base.py"))
 
@@ -106,10 +113,13 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=20, help="each --person video appears this many times per epoch")
     ap.add_argument("--whisper-layers", type=int, nargs="+", default=None, metavar="K",
                     help="encoder layers the front end reads (whisper.layers; default: params.yaml's)")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override one parameter of the training run (YAML value; repeatable), e.g. "
+                         "train.velocity_weight=10")
     a = ap.parse_args()
     a.run_dir.mkdir(parents=True, exist_ok=True)
     corpus = a.corpus if a.every == 1 else str(every_nth(Path(a.corpus), a.every, a.run_dir / f"corpus_every_{a.every}"))
-    params = base_params(corpus, a.steps, a.run_dir.resolve(), a.whisper_layers)
+    params = base_params(corpus, a.steps, a.run_dir.resolve(), a.whisper_layers, a.set)
     pfile = a.run_dir / "params_base.yaml"
     pfile.write_text(yaml.safe_dump(params, sort_keys=False))
     for stage in PREPROCESSING:
