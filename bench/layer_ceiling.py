@@ -1,6 +1,7 @@
 """Where in Whisper tiny.en does articulation live? The read-out ceiling of each encoder layer (issue 61, item 2).
 
-    python bench/layer_ceiling.py [--people runs/diagnosis] [--corpus runs/natural_corpus] [--lam 0.3]
+    python bench/layer_ceiling.py [--people runs/diagnosis] [--corpus runs/natural_corpus] [--grid STORES|none]
+        [--encoder tiny.en|base] [--track] [--lam 0.3]
 
 Every layer of the encoder is reachable through the torch port (``pipeline.audio.whisper_layers``: the
 convolution stem = layer 0, the four blocks = 1–4, the final layer norm = 5, which is what the shipped
@@ -22,7 +23,15 @@ components; the projections are fitted on every clip's audio, no opening involve
 best single layers, all 384 dimensions each). The ridge is solved from per-person sufficient statistics (Σx, Σxxᵀ, Σxy, Σy, n), so a
 leave-one-out fold subtracts one person's; inputs are standardised with the fold's own mean and SD.
 
-Writes ``results/layer_ceiling.json`` and the page ``docs/layer_ceiling.md`` with its plot.
+Two protocols: the *ceiling* (every person is held out in turn, the read-out trained on all the others,
+GRID s1 left out so natural speech is not drowned), and *transfer* (trained once on the footage that may
+train shipped weights — GRID s1's third in ``--grid``, the weekly addresses of Obama, AOC and Hill, the
+corpus' public-domain and CC clips — and scored on everyone else: what a shipped base can reach).
+
+``--encoder base`` gauges OpenAI's Whisper base the same way (``pipeline.audio.whisper_layers.ENCODERS``: two
+pinned pip packages of the ``encoders`` extra); ``--grid none`` leaves GRID s1 out (its encoding costs the most).
+
+Writes ``results/layer_ceiling.json`` and the page ``docs/layer_ceiling.md`` with its plot (``_base`` for base).
 """
 from __future__ import annotations
 
@@ -37,7 +46,7 @@ import numpy as np
 from bench.bench_results import publish, stamp
 from bench.readout_ceiling import clips_of
 from pipeline.audio.whisper_encoder import to_frame_axis
-from pipeline.audio.whisper_layers import N_LAYERS, layer_states
+from pipeline.audio.whisper_layers import ENCODERS, layer_states
 from pipeline.measures.lipsync_measures import best_lag
 from pipeline.models.mouth_prediction import load_audio
 
@@ -49,16 +58,21 @@ PEOPLE = ("obama", "grid_s4", "lieu", "macron", "hdtf_aoc", "hdtf_hill", "sky_dr
 SHIPPABLE_PEOPLE = ("obama", "hdtf_aoc", "hdtf_hill")      # US federal government works (weekly addresses)
 SHIPPABLE_CLASSES = ("public_domain", "cc0", "cc_by")
 SAME_PERSON = {"barack_obama": "obama", "grid_s4": "grid_s4"}     # corpus people who are people above
-LAYER_NAMES = ["stem", "block1", "block2", "block3", "block4", "final"]
 
 
-def clip_layers(path: str) -> np.ndarray:
-    """(N_LAYERS, T100, 384) float16 states of the clip's audio on the 100-Hz axis (cached per file)."""
+def layer_names(n_layers: int) -> list[str]:
+    """stem, block1 … blockN, final for an encoder with ``n_layers`` reachable states."""
+    return ["stem"] + [f"block{i}" for i in range(1, n_layers - 1)] + ["final"]
+
+
+def clip_layers(path: str, encoder: str = "tiny.en") -> np.ndarray:
+    """(layers, T100, width) float16 states of the clip's audio on the 100-Hz axis (cached per file and encoder)."""
     CACHE.mkdir(parents=True, exist_ok=True)
-    f = CACHE / f"{Path(path).parent.name}__{Path(path).stem}.npy"
+    suffix = "" if encoder == "tiny.en" else f"__{encoder}"
+    f = CACHE / f"{Path(path).parent.name}__{Path(path).stem}{suffix}.npy"
     if not f.exists():
         x = load_audio(path)
-        states = layer_states(x)
+        states = layer_states(x, name=encoder)
         n = 1 + len(x) // 160
         np.save(f, np.stack([to_frame_axis(s, n) for s in states]).astype(np.float16))
     return np.load(f)
@@ -118,7 +132,7 @@ def load_people(a) -> tuple[dict[str, list[dict]], set[str]]:
     shipped weights (GRID s1, the weekly addresses, the corpus' public-domain and CC clips)."""
     groups: dict[str, list[dict]] = {}
     shippable = {f"person:{p}" for p in SHIPPABLE_PEOPLE}
-    if a.grid and (a.grid / "landmarks.zarr").exists():
+    if a.grid and str(a.grid) != "none" and (a.grid / "landmarks.zarr").exists():
         grid = clips_of(a.grid / "landmarks.zarr")
         for c in grid:
             c["path"] = str(a.grid_videos / Path(c["path"]).name)
@@ -231,6 +245,8 @@ def main() -> None:
     ap.add_argument("--grid", type=Path, default=ROOT / "runs" / "grid3_L3" / "store",
                     help="GRID s1 stores (bench/shipped_base.py --every 3's); trained on in the shippable protocol")
     ap.add_argument("--grid-videos", type=Path, default=ROOT.parent / "shared" / "data" / "grid_s1" / "video")
+    ap.add_argument("--encoder", default="tiny.en", choices=["tiny.en", *ENCODERS],
+                    help="which Whisper: tiny.en (shipped) or base (the encoders extra; page layer_ceiling_base)")
     ap.add_argument("--track", action="store_true", help="first track the corpus clips' landmarks (once)")
     a = ap.parse_args()
     if a.track:
@@ -239,7 +255,8 @@ def main() -> None:
     clips = [c for cs in groups.values() for c in cs]
     print(f"{len(groups)} people ({len(shippable)} shippable), {len(clips)} clips, "
           f"{sum(len(c['truth']) for c in clips)} frames", flush=True)
-    layers = {c["path"]: clip_layers(c["path"]) for c in clips}
+    layers = {c["path"]: clip_layers(c["path"], a.encoder) for c in clips}
+    names = layer_names(len(next(iter(layers.values()))))
     results: dict[str, dict] = {"loo": {}, "shippable": {}}
 
     def gauge(name: str, build) -> None:
@@ -248,18 +265,18 @@ def main() -> None:
         results["shippable"][name] = transfer(rows, shippable, a.lam)
         print(name, "LOO", summarise(results["loo"][name]), "| shippable →", summarise(results["shippable"][name]),
               flush=True)
-    for k, name in enumerate(LAYER_NAMES):
+    for k, name in enumerate(names):
         gauge(name, lambda c, k=k: design(layers[c["path"]][k], c["fps"], len(c["truth"])))
-    bases = [pca_basis([layers[p][k] for p in layers], 64) for k in range(N_LAYERS)]
+    bases = [pca_basis([layers[p][k] for p in layers], 64) for k in range(len(names))]
     gauge("mix_all", lambda c: design(np.concatenate([(layers[c["path"]][k] - mu) @ v for k, (mu, v) in enumerate(bases)],
                                                      1), c["fps"], len(c["truth"])))
-    ranked = sorted(LAYER_NAMES, key=lambda n: -summarise(results["loo"][n])["all"]["lag0"])[:2]
-    pair = sorted(LAYER_NAMES.index(n) for n in ranked)
+    ranked = sorted(names, key=lambda n: -summarise(results["loo"][n])["all"]["lag0"])[:2]
+    pair = sorted(names.index(n) for n in ranked)
     gauge("mix_best2", lambda c: design(np.concatenate([layers[c["path"]][k] for k in pair], 1), c["fps"], len(c["truth"])))
-    out = dict(stamp(), lam=a.lam, offsets_100hz=OFFS.tolist(), best2=[LAYER_NAMES[k] for k in pair],
+    out = dict(stamp(), encoder=a.encoder, lam=a.lam, offsets_100hz=OFFS.tolist(), best2=[names[k] for k in pair],
                people={g: len(cs) for g, cs in groups.items()}, shippable=sorted(shippable), results=results,
                summary={k: {n: summarise(r) for n, r in v.items()} for k, v in results.items()})
-    publish("layer_ceiling", out, page(out))
+    publish("layer_ceiling" + ("" if a.encoder == "tiny.en" else f"_{a.encoder}"), out, page(out))
 
 
 def summarise(r: dict[str, dict]) -> dict:
@@ -296,16 +313,17 @@ def page(out: dict) -> str:
         ax.legend(fontsize=7)
     axes[0].set_ylabel("read-out corr with tracked opening, lag 0")
     fig.tight_layout()
-    fig.savefig(ROOT / "docs" / "layer_ceiling.png", dpi=110)
+    png = "layer_ceiling" + ("" if out["encoder"] == "tiny.en" else f"_{out['encoder']}") + ".png"
+    fig.savefig(ROOT / "docs" / png, dpi=110)
     plt.close(fig)
-    lines = ["# Where articulation lives in Whisper tiny.en: the read-out per layer", "",
+    lines = [f"# Where articulation lives in Whisper {out['encoder']}: the read-out per layer", "",
              f"Written by `python bench/layer_ceiling.py` (commit {out['commit']}, {out['date']}, {out['machine']}); "
              f"{len(out['people'])} people, ridge λ = {out['lam']}, context ±300 ms. A linear read-out of one "
              "front end's states, correlated with a held-out person's tracked inner-lip opening (median over a set's "
-             "people; lag 0 / best lag within ±5 frames). `final` is what the shipped `whisper` front end reads; "
+             "people; lag 0 / best lag within ±5 frames). `final` is the encoder's last layer (for tiny.en what the shipped `whisper` front end reads); "
              f"`mix_best2` joins {' and '.join(out['best2'])}; `mix_all` joins every layer's first 64 principal "
              "components.", "",
-             "![read-out per layer](layer_ceiling.png)", ""]
+             f"![read-out per layer]({png})", ""]
     for key, title in protocols.items():
         sets = [s for s in ("strangers", "people", "corpus", "grid_s4") if s in out["summary"][key][names[0]]]
         lines += [f"## {title[0].upper()}{title[1:]}", ""]

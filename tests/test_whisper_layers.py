@@ -57,3 +57,15 @@ def test_streaming_reads_the_models_layers():
 def test_bad_layer_choice_is_one_clear_error(layers):
     with pytest.raises(ParameterError, match="layers"):
         Whisper(layers=layers).validate()
+
+
+def test_depth_and_width_are_read_from_the_file():
+    v = wl.read_ct2_variables(we.weights_folder() / "model.bin")
+    assert wl.blocks_of(v) == wl.N_BLOCKS                      # layer_norm/… is not a block
+    model = wl.build(v)
+    assert len(model.blocks) == wl.N_BLOCKS and model.conv1.out_channels == we.STATE_DIM
+
+
+def test_an_encoder_this_project_does_not_pin_is_one_clear_error():
+    with pytest.raises(we.WeightsError, match="choose tiny.en or one of base"):
+        wl.pinned_bytes("large-v3")

