@@ -69,3 +69,11 @@ def test_depth_and_width_are_read_from_the_file():
 def test_an_encoder_this_project_does_not_pin_is_one_clear_error():
     with pytest.raises(we.WeightsError, match="choose tiny.en or one of base"):
         wl.pinned_bytes("large-v3")
+
+
+def test_stopping_early_gives_the_same_first_layers():
+    mel = we.log_mel(speech_like(2.0, seed=4), 200)[None]
+    full = wl.encode_layers(mel)
+    first = wl.encode_layers(mel, upto=3)
+    assert first.shape[0] == 4
+    np.testing.assert_allclose(first, full[:4], atol=1e-5)

@@ -151,7 +151,7 @@ class StreamingFeatures:
         if layers == we.FINAL:
             return we.to_frame_axis(we.encode_mel(we.whisper_scale(mel, self.peak)), n)
         from pipeline.audio.whisper_layers import encode_layers
-        states = encode_layers(we.whisper_scale(mel, self.peak)[None])[:, 0]
+        states = encode_layers(we.whisper_scale(mel, self.peak)[None], upto=max(layers))[:, 0]
         return np.concatenate([we.to_frame_axis(states[k], n) for k in layers], axis=1)
 
     def _normalise(self, block: np.ndarray) -> np.ndarray:

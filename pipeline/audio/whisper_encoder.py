@@ -223,5 +223,5 @@ def whisper_features(samples: np.ndarray, n_frames: int | None = None, window_s:
     if layers == FINAL:
         return to_frame_axis(encoder_states(samples, window_s, overlap_s, threads), n)
     from pipeline.audio.whisper_layers import layer_states
-    states = layer_states(samples, window_s, overlap_s, threads)
+    states = layer_states(samples, window_s, overlap_s, threads, upto=max(layers))
     return np.concatenate([to_frame_axis(states[k], n) for k in layers], axis=1)

@@ -121,15 +121,18 @@ def _encoder_class():
             self.blocks = nn.ModuleList(Block(dim, heads) for _ in range(blocks))
             self.ln_post = nn.LayerNorm(dim)
 
-        def forward(self, mel):
-            """mel (B, 80, n) scaled log-mel, n even ≤ 3000 → list of blocks + 2 tensors (B, n / 2, dim)."""
+        def forward(self, mel, upto: int | None = None):
+            """mel (B, 80, n) scaled log-mel, n even ≤ 3000 → list of blocks + 2 tensors (B, n / 2, dim);
+            ``upto``: stop after that layer (the list is then upto + 1 long)."""
+            last = len(self.blocks) + 1 if upto is None else upto
             x = F.gelu(self.conv2(F.gelu(self.conv1(mel)))).transpose(1, 2)
             x = x + self.positions[:x.shape[1]]
             layers = [x]
-            for block in self.blocks:
+            for block in self.blocks[:last]:
                 x = block(x)
                 layers.append(x)
-            layers.append(self.ln_post(x))
+            if last > len(self.blocks):
+                layers.append(self.ln_post(x))
             return layers
 
     return Encoder
@@ -205,7 +208,7 @@ def pinned_bytes(name: str) -> bytes:
     return b"".join(out)
 
 
-def encode_layers(mel: np.ndarray, threads: int = 1, name: str = "tiny.en") -> np.ndarray:
+def encode_layers(mel: np.ndarray, threads: int = 1, name: str = "tiny.en", upto: int | None = None) -> np.ndarray:
     """Every layer's states of a batch of scaled log-mel windows.
 
     Parameters
@@ -215,22 +218,23 @@ def encode_layers(mel: np.ndarray, threads: int = 1, name: str = "tiny.en") -> n
 
     Returns
     -------
-    ndarray of shape (blocks + 2, B, n / 2, width), float32 (tiny.en: (6, B, n / 2, 384))
+    ndarray of shape (blocks + 2, B, n / 2, width), float32 (tiny.en: (6, B, n / 2, 384)); with ``upto``
+    only the first upto + 1 layers (the blocks after it are not run)
     """
     import torch
     if mel.shape[-1] % 2 or mel.shape[-1] > 3000:
         raise ValueError(f"a whisper window needs an even number of mel frames ≤ 3000, got {mel.shape[-1]}")
     torch.set_num_threads(max(int(threads), 1))
     with torch.inference_mode():
-        layers = load_encoder(name)(torch.from_numpy(np.ascontiguousarray(mel, np.float32)))
+        layers = load_encoder(name)(torch.from_numpy(np.ascontiguousarray(mel, np.float32)), upto)
     return np.stack([t.numpy() for t in layers])
 
 
 
 def layer_states(samples: np.ndarray, window_s: float = 10.0, overlap_s: float = 2.0, threads: int = 1,
-                 batch: int = 8, name: str = "tiny.en") -> np.ndarray:
+                 batch: int = 8, name: str = "tiny.en", upto: int | None = None) -> np.ndarray:
     """Every layer's states of ``samples`` at 50 Hz, windowed as ``whisper_encoder.encoder_states``.
 
     Returns (blocks + 2, ceil(S / 320), width) float32; for tiny.en the last layer equals the ``whisper``
-    front end's states."""
-    return windowed_states(samples, lambda mel: encode_layers(mel, threads, name), window_s, overlap_s, batch)
+    front end's states; ``upto``: only the first upto + 1 layers."""
+    return windowed_states(samples, lambda mel: encode_layers(mel, threads, name, upto), window_s, overlap_s, batch)
