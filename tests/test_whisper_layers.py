@@ -38,10 +38,10 @@ def test_reader_takes_every_encoder_variable_and_refuses_old_formats(tmp_path):
 def test_layers_are_side_by_side_and_the_final_one_matches_the_shipped_front_end():
     x = speech_like(3.0, seed=1)
     final = we.whisper_features(x)
-    both = we.whisper_features(x, layers=[2, 5])
+    both = wl.whisper_features(x, layers=[2, 5])
     assert both.shape == (len(final), 2 * we.STATE_DIM)
     assert np.abs(both[:, we.STATE_DIM:] - final).max() < 1e-3 * np.abs(final).max()
-    block2 = we.whisper_features(x, layers=[2])
+    block2 = wl.whisper_features(x, layers=[2])
     np.testing.assert_allclose(block2, both[:, :we.STATE_DIM], atol=1e-5)
 
 

@@ -71,7 +71,7 @@ def frame_features(samples: np.ndarray, front_end: str, encoder: dict | None = N
     phones = phone_indicators(samples) if uses_phones(front_end) else None
     states = None
     if uses_whisper(front_end):
-        from pipeline.audio.whisper_encoder import whisper_features
+        from pipeline.audio.whisper_layers import whisper_features
         states = whisper_features(samples, 1 + len(samples) // 160, **(encoder or {}))
     return combine(front_end, mfcc, phones, states)
 

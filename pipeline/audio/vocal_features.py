@@ -82,7 +82,7 @@ def features_100hz(samples: np.ndarray, kind: str, encoder: dict | None = None) 
     if kind not in KINDS:
         raise ParameterError(f"vocal features {kind!r}: choose one of {', '.join(KINDS)}")
     if kind == "whisper":
-        from pipeline.audio.whisper_encoder import whisper_features
+        from pipeline.audio.whisper_layers import whisper_features
         return whisper_features(np.asarray(samples, np.float32), None, **(encoder or {})).astype(np.float64)
     x = _dithered(samples)
     if kind == "mfcc":

@@ -212,16 +212,9 @@ def to_frame_axis(states: np.ndarray, n_frames: int) -> np.ndarray:
 
 
 def whisper_features(samples: np.ndarray, n_frames: int | None = None, window_s: float = 10.0,
-                     overlap_s: float = 2.0, threads: int = 1, layers: tuple[int, ...] | list[int] = FINAL) -> np.ndarray:
-    """(T, 384 · len(layers)) float32 encoder features on the MFCC axis; T = ``n_frames`` or 1 + S // 160.
+                     overlap_s: float = 2.0, threads: int = 1) -> np.ndarray:
+    """(T, 384) float32 encoder features (the final layer) on the MFCC axis; T = ``n_frames`` or 1 + S // 160.
 
-    ``layers``: which encoder layers' states, side by side (``whisper.layers``; 0 = the convolution stem,
-    1–4 = the blocks, 5 = the final norm). The final layer alone runs in CTranslate2; any other choice runs
-    the torch port (``pipeline.audio.whisper_layers``), which gives the same final states."""
+    Other layers: ``pipeline.audio.whisper_layers.whisper_features``."""
     n = 1 + len(samples) // HOP if n_frames is None else int(n_frames)
-    layers = tuple(int(k) for k in layers)
-    if layers == FINAL:
-        return to_frame_axis(encoder_states(samples, window_s, overlap_s, threads), n)
-    from pipeline.audio.whisper_layers import layer_states
-    states = layer_states(samples, window_s, overlap_s, threads, upto=max(layers))
-    return np.concatenate([to_frame_axis(states[k], n) for k in layers], axis=1)
+    return to_frame_axis(encoder_states(samples, window_s, overlap_s, threads), n)

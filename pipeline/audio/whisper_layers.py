@@ -30,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.audio.whisper_encoder import STATE_DIM, WeightsError, check_weights, weights_folder, windowed_states
+from pipeline.audio import whisper_encoder
+from pipeline.audio.whisper_encoder import (FINAL, HOP, STATE_DIM, WeightsError, check_weights, to_frame_axis,
+                                             weights_folder, windowed_states)
 
 N_LAYERS = 6                     #: tiny.en's states reachable: the stem, 4 blocks, the final norm
 N_BLOCKS = 4
@@ -238,3 +240,18 @@ def layer_states(samples: np.ndarray, window_s: float = 10.0, overlap_s: float =
     Returns (blocks + 2, ceil(S / 320), width) float32; for tiny.en the last layer equals the ``whisper``
     front end's states; ``upto``: only the first upto + 1 layers."""
     return windowed_states(samples, lambda mel: encode_layers(mel, threads, name, upto), window_s, overlap_s, batch)
+
+
+def whisper_features(samples: np.ndarray, n_frames: int | None = None, window_s: float = 10.0,
+                     overlap_s: float = 2.0, threads: int = 1, layers: tuple[int, ...] | list[int] = FINAL) -> np.ndarray:
+    """(T, 384 · len(layers)) float32 encoder features on the MFCC axis; T = ``n_frames`` or 1 + S // 160.
+
+    ``layers``: which of tiny.en's layers, side by side (``whisper.layers``; 0 = the convolution stem, 1–4 = the
+    blocks, 5 = the final norm). The final layer alone runs in CTranslate2
+    (``whisper_encoder.whisper_features``); any other choice runs this port, which gives the same final states."""
+    layers = tuple(int(k) for k in layers)
+    if layers == FINAL:
+        return whisper_encoder.whisper_features(samples, n_frames, window_s, overlap_s, threads)
+    n = 1 + len(samples) // HOP if n_frames is None else int(n_frames)
+    states = layer_states(samples, window_s, overlap_s, threads, upto=max(layers))
+    return np.concatenate([to_frame_axis(states[k], n) for k in layers], axis=1)

@@ -24,7 +24,8 @@ import time
 
 import numpy as np
 
-from pipeline.audio.whisper_encoder import FINAL, STATE_DIM, load_encoder, whisper_features
+from pipeline.audio.whisper_encoder import FINAL, STATE_DIM, load_encoder
+from pipeline.audio.whisper_layers import whisper_features
 from pipeline.io.parallel import client_for, run_tasks
 from pipeline.io.runner import stage_main
 from pipeline.io.store import atomic_output, create_group, create_timed, open_group
