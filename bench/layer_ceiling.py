@@ -11,7 +11,8 @@ states at each video frame and ±300 ms around it at 60-ms steps: 11 × 384 inpu
 inter-ocular distance) is trained leave-one-person-out over every person at hand and correlated with the
 held-out person's tracked opening, at lag 0 and at the best lag within ±5 frames:
 
-    strangers   the nine strangers (``bench/strangers.py``'s landmark cache), each one person
+    strangers   the nine strangers (``bench/strangers.py``'s landmark cache), each one person (with the longer
+                footage of the strangers that ``bench/person_diagnosis.py`` personalized: the same person)
     people      the personalized people (``bench/person_diagnosis.py``'s stores, ``NAME/w/store``): Obama,
                 GRID s4, Lieu, Macron, the HDTF two and the long strangers' own footage
     corpus      the natural-speech corpus' people (``bench/natural_corpus.py``'s clips; ``--track`` tracks
@@ -146,8 +147,9 @@ def load_people(a) -> tuple[dict[str, list[dict]], set[str]]:
             groups[f"stranger:{mp4.stem}"] = [c]
     for p in PEOPLE:
         lm = a.people / p / "w" / "store" / "landmarks.zarr"
-        if lm.exists():
-            groups[f"person:{p}"] = clips_of(lm)
+        if lm.exists():                # a stranger's longer footage is the same person: one group, held out together
+            key = f"stranger:{p}" if f"stranger:{p}" in groups else f"person:{p}"
+            groups.setdefault(key, []).extend(clips_of(lm))
     corpus = a.corpus / "corpus.json"
     if corpus.exists():
         for clip in json.loads(corpus.read_text())["clips"]:
