@@ -41,9 +41,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import hashlib
 import json
-import subprocess
 from fractions import Fraction
 from pathlib import Path
 
@@ -52,6 +50,7 @@ import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one 
 import av
 import numpy as np
 
+from bench.git_mirror import git_blob
 from pipeline.face import dlib_face
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,24 +68,6 @@ def manifest(path: Path = MANIFEST) -> list[dict]:
     """The manifest's rows (a plain TSV with a header row; no CSV quoting)."""
     with path.open(newline="") as f:
         return list(csv.DictReader(f, delimiter="\t", quoting=csv.QUOTE_NONE))
-
-
-def sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-def git_blob(clip: dict, path: str, want: str, mirrors: Path) -> bytes:
-    """The bytes of ``path`` at the clip's commit, checked against ``want``; ValueError names what is wrong."""
-    git_dir = mirrors / clip["repo"].replace("/", "+") / "repo"
-    if not (git_dir / "HEAD").is_file():
-        raise ValueError(f"no git mirror of {clip['repo']} at {git_dir.parent} (fetch github:{clip['repo']})")
-    r = subprocess.run(["git", f"--git-dir={git_dir}", "show", f"{clip['commit']}:{path}"], capture_output=True)
-    if r.returncode:
-        why = (r.stderr.decode(errors="replace").strip().splitlines() or [f"rc {r.returncode}"])[-1]
-        raise ValueError(f"{clip['repo']} {clip['commit'][:12]}:{path} not in {git_dir}: {why}")
-    if (got := sha256(r.stdout)) != want:
-        raise ValueError(f"{clip['repo']} {clip['commit'][:12]}:{path} has SHA-256 {got[:16]}…, the manifest says {want[:16]}…")
-    return r.stdout
 
 
 def convert(video: Path, audio: Path | None, dest: Path) -> None:

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import hashlib
 import importlib.util
 import json
 import re
@@ -46,6 +45,7 @@ import pipeline  # noqa: F401  (before NumPy: caps every numeric library at one 
 import numpy as np
 
 from bench.bench_results import publish, stamp
+from bench.git_mirror import git_blob, sha256
 
 ROOT = Path(__file__).resolve().parents[1]
 MANIFEST = ROOT / "bench" / "tight_crops_manifest.tsv"
@@ -73,28 +73,15 @@ def manifest() -> list[dict]:
         return list(csv.DictReader(f, delimiter="\t", quoting=csv.QUOTE_NONE))
 
 
-def sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
 def assemble(clip: dict, mirrors: Path) -> Path:
     """The clip in WORK/clips, taken from its repository's git mirror at the manifest's commit and checked
     against the manifest's SHA-256; raises ValueError with one line naming what is wrong."""
     dest = WORK / "clips" / f"{clip['short_name']}.mp4"
     if dest.is_file() and sha256(dest.read_bytes()) == clip["sha256"]:
         return dest
-    git_dir = mirrors / clip["repo"].replace("/", "+") / "repo"
-    if not (git_dir / "HEAD").is_file():
-        raise ValueError(f"no git mirror of {clip['repo']} at {git_dir.parent} (fetch github:{clip['repo']})")
-    r = subprocess.run(["git", f"--git-dir={git_dir}", "show", f"{clip['commit']}:{clip['path']}"], capture_output=True)
-    if r.returncode:
-        why = (r.stderr.decode(errors="replace").strip().splitlines() or [f"rc {r.returncode}"])[-1]
-        raise ValueError(f"{clip['repo']} {clip['commit'][:12]}:{clip['path']} not in {git_dir}: {why}")
-    if (got := sha256(r.stdout)) != clip["sha256"]:
-        raise ValueError(f"{clip['repo']} {clip['commit'][:12]}:{clip['path']} has SHA-256 {got[:16]}…, "
-                         f"the manifest says {clip['sha256'][:16]}…")
+    data = git_blob(clip, clip["path"], clip["sha256"], mirrors)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    dest.write_bytes(r.stdout)
+    dest.write_bytes(data)
     return dest
 
 
